@@ -1,0 +1,177 @@
+"""Shared test helpers: in-process Zenoh peers on free loopback ports, collectors, the CLI.
+
+Every session opened here is multicast-scouting-free and listens/connects on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def loopback_endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+def zenoh_config(
+    *,
+    mode: str = "peer",
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+) -> zenoh.Config:
+    """A loopback-only Zenoh config with multicast scouting off."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return conf
+
+
+@contextmanager
+def open_session(
+    *, mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = ()
+) -> Iterator[zenoh.Session]:
+    """A Zenoh session that is always closed, whatever the test does."""
+    session = zenoh.open(zenoh_config(mode=mode, listen=listen, connect=connect))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+@dataclass(frozen=True)
+class Received:
+    key: str
+    payload: bytes
+    encoding: str
+    attachment: bytes | None
+
+
+class Collector:
+    """Subscribes to a key and queues every sample for the test to wait on."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.queue: queue.Queue[Received] = queue.Queue()
+        self._subscriber = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment
+        self.queue.put(
+            Received(
+                str(sample.key_expr),
+                sample.payload.to_bytes(),
+                str(sample.encoding),
+                None if attachment is None else attachment.to_bytes(),
+            )
+        )
+
+    def get(self, timeout: float = 10.0) -> Received:
+        """The next sample; raises queue.Empty after ``timeout`` s."""
+        return self.queue.get(timeout=timeout)
+
+    def drain(self) -> list[Received]:
+        items: list[Received] = []
+        while True:
+            try:
+                items.append(self.queue.get_nowait())
+            except queue.Empty:
+                return items
+
+    def undeclare(self) -> None:
+        self._subscriber.undeclare()
+
+
+def wait_for_subscriber(publisher: zenoh.Publisher, timeout: float = 10.0) -> None:
+    """Block until ``publisher`` has a matching subscriber (or fail after ``timeout``)."""
+    matched: queue.Queue[bool] = queue.Queue()
+    listener = publisher.declare_matching_listener(lambda status: matched.put(status.matching))
+    try:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                if matched.get(timeout=max(0.0, deadline - time.monotonic())):
+                    return
+            except queue.Empty:
+                break
+        msg = f"no subscriber matched {publisher.key_expr} within {timeout} s"
+        raise TimeoutError(msg)
+    finally:
+        listener.undeclare()
+
+
+def query_status(
+    session: zenoh.Session, key: str = "perception/status", timeout: float = 1.0
+) -> dict[str, Any] | None:
+    for reply in session.get(key, timeout=timeout):
+        if reply.ok is not None:
+            data: dict[str, Any] = json.loads(reply.ok.payload.to_string())
+            return data
+    return None
+
+
+def wait_for_status(
+    session: zenoh.Session, key: str = "perception/status", timeout: float = 20.0
+) -> dict[str, Any]:
+    """Poll the status queryable until a service answers (it is then fully started)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = query_status(session, key, timeout=0.5)
+        if status is not None:
+            return status
+    msg = f"no service answered on {key} within {timeout} s"
+    raise TimeoutError(msg)
+
+
+def cli_command(*args: str) -> list[str]:
+    """The real ``zenoh-perception`` CLI, run with this interpreter."""
+    return [sys.executable, "-m", "zenoh_perception", *args]
+
+
+@contextmanager
+def running_cli(*args: str, stop_timeout: float = 5.0) -> Iterator[subprocess.Popen[str]]:
+    """Start the real CLI as a subprocess; SIGINT and reap it on exit (kill if it hangs)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        cli_command(*args),
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=stop_timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()

@@ -1,0 +1,7 @@
+"""``python -m zenoh_perception`` is the ``zenoh-perception`` command."""
+
+import sys
+
+from zenoh_perception.cli import main
+
+sys.exit(main())

@@ -1,0 +1,131 @@
+"""The ``zenoh-perception`` command line: parses arguments and calls the matching ``main``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from collections.abc import Callable, Sequence
+
+import zenoh
+
+from zenoh_perception import __version__, echo, service, status
+from zenoh_perception.errors import PerceptionError
+from zenoh_perception.settings import add_settings_arguments, settings_from_args
+from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+
+LOG_FORMAT = "ts=%(asctime)s level=%(levelname)s logger=%(name)s %(message)s"
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (the process then shuts down cleanly, exit 0)."""
+    stop = threading.Event()
+
+    def handle(signum: int, _frame: object) -> None:
+        logging.getLogger("zenoh_perception").info(
+            "event=signal signal=%s", signal.Signals(signum).name
+        )
+        stop.set()
+
+    signal.signal(signal.SIGINT, handle)
+    signal.signal(signal.SIGTERM, handle)
+    return stop
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    conf = zenoh_config_from_args(args)
+    service.run(conf, settings, _stop_on_signals())
+    return 0
+
+
+def _cmd_echo(args: argparse.Namespace) -> int:
+    return echo.main(
+        zenoh_config_from_args(args),
+        tag_key=args.tag_key,
+        record_key=args.record_key,
+        ros_package=args.ros_package,
+        records=not args.tags_only,
+        as_json=args.json,
+        count=args.count,
+        timeout=args.timeout,
+        stop=_stop_on_signals(),
+    )
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    return status.main(zenoh_config_from_args(args), key=args.status_key, timeout=args.timeout)
+
+
+def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "run",
+        help="run the perception service",
+        description="Subscribe camera frames, detect ArUco tags, publish tag + record per frame.",
+    )
+    add_zenoh_arguments(parser)
+    add_settings_arguments(parser)
+    parser.set_defaults(handler=_cmd_run)
+
+
+def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser("echo", help="print decoded tags and records")
+    add_zenoh_arguments(parser)
+    parser.add_argument("--tag-key", default="tag", help="tag key (default: tag)")
+    parser.add_argument(
+        "--record-key", default="perception/tags", help="record key (default: perception/tags)"
+    )
+    parser.add_argument("--ros-package", default="mrover", help="ROS package of the tag type")
+    parser.add_argument("--tags-only", action="store_true", help="do not print records")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.add_argument("--count", type=int, default=0, help="exit after N lines (0: never)")
+    parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
+    parser.set_defaults(handler=_cmd_echo)
+
+
+def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
+    add_zenoh_arguments(parser)
+    parser.add_argument("--status-key", default="perception/status", help="status key")
+    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    parser.set_defaults(handler=_cmd_status)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="zenoh-perception",
+        description="ArUco tag perception over Zenoh, ROS 2 compatible on the wire.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+        help="log level (default INFO); Zenoh's own log follows RUST_LOG",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_add_run, _add_echo, _add_status):
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format=LOG_FORMAT, stream=sys.stderr)
+    zenoh.init_log_from_env_or("error")
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except PerceptionError as err:
+        print(f"zenoh-perception: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

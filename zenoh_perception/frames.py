@@ -1,0 +1,313 @@
+"""Camera frame decoding: raw pixels with a msgpack attachment, or sensor_msgs/Image CDR.
+
+Both decoders return a :class:`Frame` whose ``pixels`` is a *view* into the payload (no pixel
+copy): rows may be padded (``step`` larger than ``width * channels``) and are described by numpy
+strides rather than copied away. Every size is checked against the bytes actually present before
+any view is built, so a hostile header can never make us allocate or read past the payload.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Final, cast
+
+import cv2
+import msgpack
+import numpy as np
+import numpy.typing as npt
+from rosbags.serde import SerdeError
+
+from zenoh_perception.errors import (
+    AttachmentError,
+    DimensionError,
+    ImageCdrError,
+    SizeMismatchError,
+    UnsupportedEncodingError,
+)
+from zenoh_perception.messages import IMAGE_TYPE, TYPESTORE
+
+Pixels = npt.NDArray[np.uint8]
+
+#: Largest accepted width or height. Bigger values are treated as corrupt headers.
+MAX_DIMENSION: Final = 16384
+#: Largest accepted attachment; real ones are well under 200 bytes.
+MAX_ATTACHMENT_BYTES: Final = 4096
+#: Largest accepted frame_id length, in characters.
+MAX_FRAME_ID_CHARS: Final = 256
+
+
+@dataclass(frozen=True, slots=True)
+class PixelEncoding:
+    """How one ROS image encoding maps to channels and to an OpenCV grey conversion."""
+
+    name: str
+    channels: int
+    to_gray: int | None  # cv2.COLOR_* code, None when already grey
+    to_bgr: int | None  # cv2.COLOR_* code, None when already BGR
+
+
+ENCODINGS: Final[Mapping[str, PixelEncoding]] = {
+    "bgra8": PixelEncoding("bgra8", 4, cv2.COLOR_BGRA2GRAY, cv2.COLOR_BGRA2BGR),
+    "bgr8": PixelEncoding("bgr8", 3, cv2.COLOR_BGR2GRAY, None),
+    "rgba8": PixelEncoding("rgba8", 4, cv2.COLOR_RGBA2GRAY, cv2.COLOR_RGBA2BGR),
+    "rgb8": PixelEncoding("rgb8", 3, cv2.COLOR_RGB2GRAY, cv2.COLOR_RGB2BGR),
+    "mono8": PixelEncoding("mono8", 1, None, cv2.COLOR_GRAY2BGR),
+}
+
+DEFAULT_ENCODING: Final = "bgra8"
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One decoded camera frame.
+
+    ``pixels`` has shape (height, width, channels), or (height, width) for mono8, and may be a
+    read-only, row-strided view into the received payload.
+    """
+
+    pixels: Pixels
+    encoding: PixelEncoding
+    stamp_ns: int | None
+    frame_id: str
+    seq: int | None
+
+    @property
+    def width(self) -> int:
+        return int(self.pixels.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.pixels.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class RawFrameMeta:
+    """The attachment of a raw frame (see ``schemas/frame-attachment.schema.json``)."""
+
+    width: int
+    height: int
+    encoding: str = DEFAULT_ENCODING
+    step: int | None = None
+    stamp_ns: int | None = None
+    frame_id: str = ""
+    seq: int | None = None
+
+    def to_msgpack(self) -> bytes:
+        """Encode as the attachment a camera sends (keys with ``None`` values are left out)."""
+        fields: dict[str, object] = {
+            "width": self.width,
+            "height": self.height,
+            "encoding": self.encoding,
+        }
+        for key in ("step", "stamp_ns", "seq"):
+            value = getattr(self, key)
+            if value is not None:
+                fields[key] = value
+        if self.frame_id:
+            fields["frame_id"] = self.frame_id
+        packed: bytes = msgpack.packb(fields)
+        return packed
+
+
+def _int_field(fields: Mapping[Any, Any], key: str, *, required: bool) -> int | None:
+    value = fields.get(key)
+    if value is None:
+        if required:
+            msg = f"attachment lacks {key!r}"
+            raise AttachmentError(msg)
+        return None
+    if isinstance(value, bool) or not isinstance(value, int):
+        msg = f"attachment {key!r} is {type(value).__name__}, not int"
+        raise AttachmentError(msg)
+    return value
+
+
+def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
+    """Parse and type-check a raw frame's msgpack attachment.
+
+    Raises:
+        AttachmentError: missing, oversized, not msgpack, not a map, or wrongly typed fields.
+
+    """
+    if data is None or len(data) == 0:
+        msg = "raw frame without attachment"
+        raise AttachmentError(msg)
+    if len(data) > MAX_ATTACHMENT_BYTES:
+        msg = f"attachment of {len(data)} bytes exceeds {MAX_ATTACHMENT_BYTES}"
+        raise AttachmentError(msg)
+    try:
+        # msgpack bounds every container and string by the input length, so this cannot
+        # allocate more than the attachment holds.
+        fields = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except (ValueError, msgpack.UnpackException, TypeError) as err:
+        msg = f"attachment is not msgpack: {err}"
+        raise AttachmentError(msg) from err
+    if not isinstance(fields, dict):
+        msg = f"attachment is a msgpack {type(fields).__name__}, not a map"
+        raise AttachmentError(msg)
+    encoding = fields.get("encoding", DEFAULT_ENCODING)
+    if not isinstance(encoding, str):
+        msg = "attachment 'encoding' is not a string"
+        raise AttachmentError(msg)
+    frame_id = fields.get("frame_id", "")
+    if not isinstance(frame_id, str) or len(frame_id) > MAX_FRAME_ID_CHARS:
+        msg = "attachment 'frame_id' is not a string of at most 256 characters"
+        raise AttachmentError(msg)
+    width = _int_field(fields, "width", required=True)
+    height = _int_field(fields, "height", required=True)
+    stamp_ns = _int_field(fields, "stamp_ns", required=False)
+    if stamp_ns is not None and stamp_ns < 0:
+        msg = "attachment 'stamp_ns' is negative"
+        raise AttachmentError(msg)
+    if width is None or height is None:  # pragma: no cover - required=True guarantees ints
+        msg = "attachment lacks width or height"
+        raise AttachmentError(msg)
+    return RawFrameMeta(
+        width=width,
+        height=height,
+        encoding=encoding,
+        step=_int_field(fields, "step", required=False),
+        stamp_ns=stamp_ns,
+        frame_id=frame_id,
+        seq=_int_field(fields, "seq", required=False),
+    )
+
+
+def _lookup_encoding(name: str) -> PixelEncoding:
+    try:
+        return ENCODINGS[name.lower()]
+    except KeyError as err:
+        msg = f"unsupported encoding {name[:32]!r} (supported: {', '.join(ENCODINGS)})"
+        raise UnsupportedEncodingError(msg) from err
+
+
+def pixel_view(
+    buffer: Pixels, width: int, height: int, step: int | None, encoding: PixelEncoding
+) -> Pixels:
+    """Build a (height, width[, channels]) view over ``buffer`` honouring a row ``step``.
+
+    ``buffer`` must be a 1-D uint8 array holding exactly ``step * height`` bytes.
+
+    Raises:
+        DimensionError: non-positive or absurd width/height, or a step shorter than a row.
+        SizeMismatchError: ``buffer`` does not hold exactly ``step * height`` bytes.
+
+    """
+    if not (0 < width <= MAX_DIMENSION and 0 < height <= MAX_DIMENSION):
+        msg = f"dimensions {width}x{height} outside 1..{MAX_DIMENSION}"
+        raise DimensionError(msg)
+    row_bytes = width * encoding.channels
+    if step is None:
+        step = row_bytes
+    if step < row_bytes or step > row_bytes + MAX_DIMENSION:
+        msg = f"step {step} does not fit rows of {row_bytes} bytes"
+        raise DimensionError(msg)
+    if buffer.size != step * height:
+        msg = f"{buffer.size} pixel bytes for {width}x{height} {encoding.name} step {step}"
+        raise SizeMismatchError(msg)
+    if encoding.channels == 1:
+        shape: tuple[int, ...] = (height, width)
+        strides: tuple[int, ...] = (step, 1)
+    else:
+        shape = (height, width, encoding.channels)
+        strides = (step, encoding.channels, 1)
+    view: Pixels = np.lib.stride_tricks.as_strided(
+        buffer, shape=shape, strides=strides, writeable=False
+    )
+    return view
+
+
+def decode_raw_frame(payload: bytes | memoryview, attachment: bytes | memoryview | None) -> Frame:
+    """Decode raw pixels described by a msgpack attachment (zero-copy view of ``payload``).
+
+    Raises:
+        FrameDecodeError: a subclass naming what is wrong.
+
+    """
+    meta = decode_attachment(attachment)
+    encoding = _lookup_encoding(meta.encoding)
+    buffer = np.frombuffer(payload, dtype=np.uint8)
+    pixels = pixel_view(buffer, meta.width, meta.height, meta.step, encoding)
+    return Frame(pixels, encoding, meta.stamp_ns, meta.frame_id, meta.seq)
+
+
+def decode_image_cdr(payload: bytes | memoryview) -> Frame:
+    """Decode a ROS 2 sensor_msgs/msg/Image CDR sample (with its 4-byte encapsulation header).
+
+    ``data`` is a zero-copy view of ``payload`` when ``payload`` is a memoryview or bytes.
+
+    Raises:
+        FrameDecodeError: a subclass naming what is wrong.
+
+    """
+    view = payload if isinstance(payload, memoryview) else memoryview(payload)
+    try:
+        msg: Any = TYPESTORE.deserialize_cdr(view, IMAGE_TYPE)
+    except (SerdeError, struct.error, ValueError, IndexError, UnicodeDecodeError) as err:
+        text = f"not a sensor_msgs/Image CDR sample: {err}"
+        raise ImageCdrError(text) from err
+    encoding = _lookup_encoding(str(msg.encoding))
+    data: Pixels = msg.data
+    if data.ndim != 1 or data.dtype != np.uint8:  # pragma: no cover - rosbags always gives uint8[]
+        text = "Image.data is not a uint8 sequence"
+        raise ImageCdrError(text)
+    pixels = pixel_view(data, int(msg.width), int(msg.height), int(msg.step), encoding)
+    stamp = msg.header.stamp
+    stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    return Frame(pixels, encoding, stamp_ns, str(msg.header.frame_id)[:MAX_FRAME_ID_CHARS], None)
+
+
+def encode_image_cdr(
+    pixels: Pixels, encoding: str, *, stamp_ns: int = 0, frame_id: str = "", step: int | None = None
+) -> memoryview:
+    """Serialise pixels as sensor_msgs/msg/Image CDR, as a ROS 2 camera driver would.
+
+    ``step`` larger than a row pads each row with zero bytes (like drivers that align rows).
+    """
+    enc = _lookup_encoding(encoding)
+    height, width = int(pixels.shape[0]), int(pixels.shape[1])
+    row_bytes = width * enc.channels
+    step = row_bytes if step is None else step
+    if step < row_bytes:
+        msg = f"step {step} shorter than a row of {row_bytes} bytes"
+        raise DimensionError(msg)
+    rows = np.ascontiguousarray(pixels, dtype=np.uint8).reshape(height, row_bytes)
+    if step == row_bytes:
+        data = rows.reshape(-1)
+    else:
+        padded = np.zeros((height, step), dtype=np.uint8)
+        padded[:, :row_bytes] = rows
+        data = padded.reshape(-1)
+    types = TYPESTORE.types
+    image = types[IMAGE_TYPE](
+        header=types["std_msgs/msg/Header"](
+            stamp=types["builtin_interfaces/msg/Time"](
+                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
+            ),
+            frame_id=frame_id,
+        ),
+        height=height,
+        width=width,
+        encoding=enc.name,
+        is_bigendian=0,
+        step=step,
+        data=data,
+    )
+    raw: memoryview = TYPESTORE.serialize_cdr(image, IMAGE_TYPE)
+    return raw
+
+
+def to_gray(frame: Frame) -> Pixels:
+    """Convert straight from the frame's encoding to one grey channel (no intermediate BGR)."""
+    if frame.encoding.to_gray is None:
+        return frame.pixels
+    return cast(Pixels, cv2.cvtColor(frame.pixels, frame.encoding.to_gray))
+
+
+def to_bgr(frame: Frame) -> Pixels:
+    """Convert the frame to a new BGR image (used for the debug image only)."""
+    if frame.encoding.to_bgr is None:
+        return np.array(frame.pixels, copy=True)
+    return cast(Pixels, cv2.cvtColor(frame.pixels, frame.encoding.to_bgr))

@@ -1,0 +1,64 @@
+"""Per-tag geometry: centre, area and the closeness metric.
+
+Conventions: pixel coordinates with (0, 0) at the top-left, x to the right, y down; corners in
+the order top-left, top-right, bottom-right, bottom-left of the marker itself.
+
+Closeness metric, in [0, 1], 0 = very close, 1 = far:
+
+- ``area`` (default): ``1 - sqrt(tag_area / image_area)``, tag area from the corner polygon
+  (shoelace formula). A tag filling the whole image scores 0, a vanishing one 1. Rover
+  navigation code is tuned for this metric (it stops at about 0.93 at 640x480).
+- ``distance``: ``distance_m / max_range_m`` from the tag's estimated pose (needs camera
+  intrinsics and the tag's physical size).
+
+Both are clamped to [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+Corners = npt.NDArray[np.floating]
+
+
+def tag_center(corners: Corners) -> tuple[float, float]:
+    """Mean of the four corners, in absolute pixels."""
+    mean = np.asarray(corners, dtype=np.float64).reshape(4, 2).mean(axis=0)
+    return float(mean[0]), float(mean[1])
+
+
+def polygon_area(corners: Corners) -> float:
+    """Area of the corner polygon in square pixels (shoelace formula, orientation-free)."""
+    pts = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    x, y = pts[:, 0], pts[:, 1]
+    return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2.0)
+
+
+def clamp_unit(value: float) -> float:
+    """Clamp to [0, 1]; NaN counts as far (1)."""
+    if math.isnan(value):
+        return 1.0
+    return min(1.0, max(0.0, value))
+
+
+def closeness_from_area(tag_area: float, width: int, height: int) -> float:
+    """``1 - sqrt(tag_area / image_area)``, clamped to [0, 1]."""
+    image_area = float(width) * float(height)
+    if image_area <= 0.0:
+        return 1.0
+    return clamp_unit(1.0 - math.sqrt(max(tag_area, 0.0) / image_area))
+
+
+def closeness_from_distance(distance_m: float, max_range_m: float) -> float:
+    """``distance_m / max_range_m``, clamped to [0, 1]."""
+    if max_range_m <= 0.0:
+        return 1.0
+    return clamp_unit(distance_m / max_range_m)
+
+
+def distance_to_center(x: float, y: float, width: int, height: int) -> float:
+    """Euclidean distance in pixels from (x, y) to the image centre."""
+    return math.hypot(x - width / 2.0, y - height / 2.0)

@@ -1,0 +1,96 @@
+"""Frame -> grey -> detections -> per-tag geometry -> selection. Pure: no Zenoh, no logging."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+
+from zenoh_perception.detection import Detection, Detector, make_detector
+from zenoh_perception.frames import Frame, to_gray
+from zenoh_perception.geometry import (
+    closeness_from_area,
+    closeness_from_distance,
+    polygon_area,
+    tag_center,
+)
+from zenoh_perception.pose import Intrinsics, estimate_pose
+from zenoh_perception.selection import Policy, TagMessage, TagObservation, selected_message
+from zenoh_perception.settings import Settings
+
+
+@dataclass(frozen=True, slots=True)
+class Analysis:
+    """What the pipeline found in one frame."""
+
+    tags: tuple[TagObservation, ...]
+    selected: TagMessage
+    convert_ms: float
+    detect_ms: float
+
+
+def observe(
+    detection: Detection,
+    width: int,
+    height: int,
+    settings: Settings,
+    intrinsics: Intrinsics | None = None,
+) -> TagObservation:
+    """Geometry of one detection: centre, area, closeness and (when possible) pose."""
+    x, y = tag_center(detection.corners)
+    area = polygon_area(detection.corners)
+    closeness = closeness_from_area(area, width, height)
+    corners = tuple((float(cx), float(cy)) for cx, cy in detection.corners)
+    size = settings.tag_size_for(detection.tag_id)
+    pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
+    if pose is None:
+        return TagObservation(detection.tag_id, x, y, closeness, corners, area)
+    if settings.metric == "distance":
+        closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
+    return TagObservation(
+        detection.tag_id, x, y, closeness, corners, area, pose.distance_m, pose.rvec, pose.tvec
+    )
+
+
+def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
+    if not settings.has_intrinsics:
+        return None
+    return Intrinsics(
+        settings.camera_fx, settings.camera_fy, settings.camera_cx, settings.camera_cy
+    )
+
+
+class Pipeline:
+    """Turns decoded frames into an :class:`Analysis`.
+
+    ``intrinsics`` starts from the settings and may be replaced at run time (CameraInfo).
+    """
+
+    def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
+        self.settings = settings
+        if settings.opencv_threads > 0:
+            cv2.setNumThreads(settings.opencv_threads)
+        self.detector = (
+            detector
+            if detector is not None
+            else make_detector(settings.detector, settings.dictionary)
+        )
+        self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
+        self._policy = Policy(settings.policy)
+
+    def process(self, frame: Frame) -> Analysis:
+        start = time.perf_counter()
+        gray = to_gray(frame)
+        converted = time.perf_counter()
+        detections = self.detector.detect(gray)
+        detected = time.perf_counter()
+        width, height = frame.width, frame.height
+        tags = tuple(observe(d, width, height, self.settings, self.intrinsics) for d in detections)
+        selected = selected_message(tags, width, height, self._policy)
+        return Analysis(
+            tags=tags,
+            selected=selected,
+            convert_ms=(converted - start) * 1e3,
+            detect_ms=(detected - converted) * 1e3,
+        )

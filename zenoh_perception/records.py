@@ -1,0 +1,156 @@
+"""Output encodings: the ``tag`` CDR message and the ``perception/tags`` msgpack record.
+
+``tag`` is byte for byte what a ROS 2 publisher of StarterProjectTag sends (serialised by
+rosbags): ``00 01 00 00`` (CDR little-endian encapsulation), int32 tag_id, float32 x, float32 y,
+float32 closeness — 20 bytes.
+
+The record is described by ``schemas/perception-tags.schema.json``. Its message fields are
+rounded to float32 so that they equal the ``tag`` message of the same frame exactly.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import msgpack
+import numpy as np
+from rosbags.serde import SerdeError
+
+from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.messages import DEFAULT_ROS_PACKAGE, make_typestore, tag_type_name
+from zenoh_perception.selection import TagMessage, TagObservation
+
+TAG_CDR_SIZE: Final = 20
+MESSAGE_FIELDS: Final = (
+    "tag_id",
+    "x_tag_center_pixel",
+    "y_tag_center_pixel",
+    "closeness_metric",
+)
+
+
+def f32(value: float) -> float:
+    """``value`` rounded to the nearest float32 (as the CDR message carries it)."""
+    return float(np.float32(value))
+
+
+class TagCodec:
+    """Serialise / deserialise StarterProjectTag CDR with rosbags."""
+
+    def __init__(self, package: str = DEFAULT_ROS_PACKAGE) -> None:
+        self._store = make_typestore(package)
+        self.type_name = tag_type_name(package)
+        self._cls = self._store.types[self.type_name]
+
+    def encode(self, msg: TagMessage) -> memoryview:
+        instance = self._cls(
+            tag_id=int(msg.tag_id),
+            x_tag_center_pixel=msg.x_tag_center_pixel,
+            y_tag_center_pixel=msg.y_tag_center_pixel,
+            closeness_metric=msg.closeness_metric,
+        )
+        raw: memoryview = self._store.serialize_cdr(instance, self.type_name)
+        return raw
+
+    def decode(self, payload: bytes | memoryview) -> TagMessage:
+        """Raises MessageDecodeError for anything but one well-formed tag message."""
+        try:
+            msg: Any = self._store.deserialize_cdr(payload, self.type_name)
+        except (SerdeError, struct.error, ValueError, IndexError) as err:
+            text = f"not a {self.type_name} CDR sample: {err}"
+            raise MessageDecodeError(text) from err
+        return TagMessage(
+            int(msg.tag_id),
+            float(msg.x_tag_center_pixel),
+            float(msg.y_tag_center_pixel),
+            float(msg.closeness_metric),
+        )
+
+
+def message_fields(msg: TagMessage) -> dict[str, float | int]:
+    return {
+        "tag_id": int(msg.tag_id),
+        "x_tag_center_pixel": f32(msg.x_tag_center_pixel),
+        "y_tag_center_pixel": f32(msg.y_tag_center_pixel),
+        "closeness_metric": f32(msg.closeness_metric),
+    }
+
+
+def tag_entry(tag: TagObservation) -> dict[str, Any]:
+    entry: dict[str, Any] = message_fields(tag.message())
+    entry["corners"] = [[float(x), float(y)] for x, y in tag.corners]
+    if tag.distance_m is not None:
+        entry["distance_m"] = float(tag.distance_m)
+    if tag.rvec is not None and tag.tvec is not None:
+        entry["pose"] = {"rvec": list(tag.rvec), "tvec": list(tag.tvec)}
+    return entry
+
+
+@dataclass(frozen=True, slots=True)
+class FrameRecord:
+    """Everything published on ``perception/tags`` for one frame."""
+
+    stamp_ns: int
+    frame_id: str
+    seq: int
+    width: int
+    height: int
+    selected: TagMessage
+    tags: Sequence[TagObservation]
+    timing_ms: Mapping[str, float]
+    source: str
+
+    def to_msgpack(self) -> bytes:
+        record = {
+            "stamp_ns": int(self.stamp_ns),
+            "frame_id": self.frame_id,
+            "seq": int(self.seq),
+            "width": int(self.width),
+            "height": int(self.height),
+            "source": self.source,
+            "selected": message_fields(self.selected),
+            "tags": [tag_entry(tag) for tag in self.tags],
+            "timing": {key: round(float(value), 4) for key, value in self.timing_ms.items()},
+        }
+        packed: bytes = msgpack.packb(record)
+        return packed
+
+
+_RECORD_KEYS: Final = (
+    "stamp_ns",
+    "frame_id",
+    "seq",
+    "width",
+    "height",
+    "selected",
+    "tags",
+    "timing",
+)
+
+
+def decode_record(payload: bytes | memoryview) -> dict[str, Any]:
+    """Parse a ``perception/tags`` record and check its required keys.
+
+    Raises:
+        MessageDecodeError: not msgpack, not a map, or required keys missing.
+
+    """
+    try:
+        record = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except (ValueError, msgpack.UnpackException, TypeError) as err:
+        text = f"record is not msgpack: {err}"
+        raise MessageDecodeError(text) from err
+    if not isinstance(record, dict):
+        text = "record is not a map"
+        raise MessageDecodeError(text)
+    missing = [key for key in _RECORD_KEYS if key not in record]
+    selected = record.get("selected")
+    if not missing and isinstance(selected, dict):
+        missing = [f"selected.{key}" for key in MESSAGE_FIELDS if key not in selected]
+    if missing:
+        text = f"record lacks {', '.join(missing)}"
+        raise MessageDecodeError(text)
+    return record

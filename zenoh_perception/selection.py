@@ -1,0 +1,80 @@
+"""Choosing the one tag a frame reports on ``tag``.
+
+Policies:
+
+- ``closest`` (default): lowest closeness metric; ties go to the tag nearer the image centre,
+  then to the lower id.
+- ``center``: nearest the image centre (the older convention); ties go to the lower closeness
+  metric, then the lower id.
+
+With no detection the selection is :data:`NO_TAG` (id -1, all zeros).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Final
+
+from zenoh_perception.geometry import distance_to_center
+
+
+class Policy(StrEnum):
+    CLOSEST = "closest"
+    CENTER = "center"
+
+
+@dataclass(frozen=True, slots=True)
+class TagMessage:
+    """The four fields of the ROS 2 StarterProjectTag message, in wire order."""
+
+    tag_id: int
+    x_tag_center_pixel: float
+    y_tag_center_pixel: float
+    closeness_metric: float
+
+
+#: The selection when nothing is detected.
+NO_TAG: Final = TagMessage(-1, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class TagObservation:
+    """One detected tag with its derived geometry."""
+
+    tag_id: int
+    x: float
+    y: float
+    closeness: float
+    corners: tuple[tuple[float, float], ...]
+    area_px: float
+    distance_m: float | None = None
+    rvec: tuple[float, float, float] | None = field(default=None)
+    tvec: tuple[float, float, float] | None = field(default=None)
+
+    def message(self) -> TagMessage:
+        return TagMessage(self.tag_id, self.x, self.y, self.closeness)
+
+
+def select_tag(
+    tags: Sequence[TagObservation], width: int, height: int, policy: Policy = Policy.CLOSEST
+) -> TagObservation | None:
+    """The tag ``policy`` picks among ``tags``, or None when there is none."""
+    if not tags:
+        return None
+
+    def centre_offset(tag: TagObservation) -> float:
+        return distance_to_center(tag.x, tag.y, width, height)
+
+    if policy is Policy.CENTER:
+        return min(tags, key=lambda t: (centre_offset(t), t.closeness, t.tag_id))
+    return min(tags, key=lambda t: (t.closeness, centre_offset(t), t.tag_id))
+
+
+def selected_message(
+    tags: Sequence[TagObservation], width: int, height: int, policy: Policy = Policy.CLOSEST
+) -> TagMessage:
+    """The message to publish: the selected tag's fields, or :data:`NO_TAG`."""
+    chosen = select_tag(tags, width, height, policy)
+    return NO_TAG if chosen is None else chosen.message()

@@ -1,0 +1,83 @@
+"""Zenoh session flags, spelled as in zenoh-python's own examples.
+
+``-c/--config FILE`` (JSON5 Zenoh config), ``-m/--mode``, ``-e/--connect`` and ``-l/--listen``
+(repeatable), ``--no-multicast-scouting`` and ``--cfg KEY:VALUE`` (a JSON5 value inserted at a
+config path, e.g. ``--cfg 'transport/shared_memory/enabled:true'``). Flags override the file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import zenoh
+
+from zenoh_perception.errors import SettingsError
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("Zenoh session")
+    group.add_argument(
+        "-c", "--config", type=Path, metavar="FILE", help="Zenoh configuration file (JSON5)"
+    )
+    group.add_argument(
+        "-m", "--mode", choices=("peer", "client", "router"), help="Zenoh mode (default: peer)"
+    )
+    group.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/192.168.1.2:7447 (repeatable)",
+    )
+    group.add_argument(
+        "-l",
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--no-multicast-scouting",
+        action="store_true",
+        help="disable multicast scouting (peers then meet only through -e/-l)",
+    )
+    group.add_argument(
+        "--cfg",
+        action="append",
+        default=[],
+        metavar="KEY:VALUE",
+        help="insert a JSON5 value at a config path, e.g. 'scouting/delay:500' (repeatable)",
+    )
+
+
+def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
+    """A ``zenoh.Config`` from the flags added by :func:`add_zenoh_arguments`.
+
+    Raises:
+        SettingsError: unreadable config file or a malformed ``--cfg``.
+
+    """
+    try:
+        conf = zenoh.Config.from_file(str(args.config)) if args.config else zenoh.Config()
+        if args.mode is not None:
+            conf.insert_json5("mode", json.dumps(args.mode))
+        if args.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+        if args.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(args.listen))
+        if args.no_multicast_scouting:
+            conf.insert_json5("scouting/multicast/enabled", json.dumps(False))
+        for item in args.cfg:
+            key, sep, value = str(item).partition(":")
+            if not sep or not key:
+                msg = f"--cfg {item!r} is not KEY:VALUE"
+                raise SettingsError(msg)
+            conf.insert_json5(key, value)
+    except zenoh.ZError as err:
+        msg = f"invalid Zenoh configuration: {err}"
+        raise SettingsError(msg) from err
+    return conf
