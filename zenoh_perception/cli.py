@@ -95,6 +95,15 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.set_defaults(handler=_cmd_status)
 
 
+# Each entry adds one subcommand whose parser sets ``handler`` (a function of the namespace
+# returning the exit code). Commands living in their own module expose ``register(sub)``.
+_COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None], ...] = (
+    _add_run,
+    _add_echo,
+    _add_status,
+)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="zenoh-perception",
@@ -108,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="log level (default INFO); Zenoh's own log follows RUST_LOG",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_run, _add_echo, _add_status):
+    for add in _COMMANDS:
         add(sub)
     return parser
 
