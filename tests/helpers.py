@@ -12,8 +12,9 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -175,3 +176,16 @@ def running_cli(*args: str, stop_timeout: float = 5.0) -> Iterator[subprocess.Po
                 proc.wait()
         if proc.stdout is not None:
             proc.stdout.close()
+
+
+def wait_until(
+    predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition"
+) -> None:
+    """Poll ``predicate`` (every 10 ms) until it holds; TimeoutError after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    pause = threading.Event()
+    while not predicate():
+        if time.monotonic() >= deadline:
+            msg = f"{what} not reached within {timeout} s"
+            raise TimeoutError(msg)
+        pause.wait(0.01)

@@ -68,8 +68,9 @@ def select_tag(
         return distance_to_center(tag.x, tag.y, width, height)
 
     if policy is Policy.CENTER:
-        return min(tags, key=lambda t: (centre_offset(t), t.closeness, t.tag_id))
-    return min(tags, key=lambda t: (t.closeness, centre_offset(t), t.tag_id))
+        return min(tags, key=lambda t: (centre_offset(t), t.closeness, t.tag_id, t.y, t.x))
+    # Last keys (y, x) only make the choice independent of detection order in exact ties.
+    return min(tags, key=lambda t: (t.closeness, centre_offset(t), t.tag_id, t.y, t.x))
 
 
 def selected_message(

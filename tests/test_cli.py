@@ -1,0 +1,178 @@
+"""End to end: the real ``zenoh-perception`` CLI as subprocesses, fed from another peer."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import time
+
+import numpy as np
+
+from tests.helpers import (
+    REPO,
+    Collector,
+    cli_command,
+    open_session,
+    running_cli,
+    wait_for_status,
+    wait_for_subscriber,
+)
+from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.scene import render_markers
+
+W, H = 1280, 720
+
+
+def square(x0: float, y0: float, side: float) -> np.ndarray:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+FRAMES = [
+    (render_markers(W, H, [(1, square(100, 100, 120)), (2, square(700, 300, 260))]), 2),
+    (render_markers(W, H, []), -1),
+    (render_markers(W, H, [(9, square(900, 80, 90)), (4, square(300, 420, 70))]), 9),
+]
+
+
+def test_run_answers_hd720_raw_and_cdr_frames_and_survives_garbage(endpoint: str) -> None:
+    with (
+        running_cli(
+            "run",
+            "--settings",
+            "config/perception.toml",
+            "-l",
+            endpoint,
+            "--no-multicast-scouting",
+            "--stats-interval-s",
+            "0.5",
+        ) as proc,
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        tags = Collector(camera, "tag")
+        records = Collector(camera, "perception/tags")
+        publisher = camera.declare_publisher("zed/left/image")
+        wait_for_subscriber(publisher)
+        codec = TagCodec()
+        for i in range(12):
+            image, expected = FRAMES[i % len(FRAMES)]
+            stamp = 1_700_000_000_000_000_000 + i
+            if i % 2 == 0:
+                meta = RawFrameMeta(W, H, stamp_ns=stamp, seq=i, frame_id="zed_left")
+                publisher.put(image.tobytes(), attachment=meta.to_msgpack())
+            else:
+                publisher.put(bytes(encode_image_cdr(image, "bgra8", stamp_ns=stamp)))
+            tag = codec.decode(tags.get(timeout=20).payload)
+            record = decode_record(records.get(timeout=20).payload)
+            assert tag.tag_id == expected
+            assert record["selected"]["tag_id"] == tag.tag_id
+            assert record["selected"]["closeness_metric"] == tag.closeness_metric
+            assert record["stamp_ns"] == stamp
+            if i % 3 == 1:  # garbage between good frames never kills the service
+                publisher.put(b"\xde\xad\xbe\xef" * 10)
+                publisher.put(b"1234", attachment=b"\x92\x01")
+        assert proc.poll() is None
+        status = wait_for_status(camera)
+        assert status["frames"]["processed"] >= 12
+    assert proc.returncode == 0
+
+
+def test_echo_prints_tags_and_status_reports(endpoint: str) -> None:
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting"),
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        echo = subprocess.Popen(
+            cli_command(
+                "echo",
+                "-e",
+                endpoint,
+                "--no-multicast-scouting",
+                "--json",
+                "--count",
+                "2",
+                "--timeout",
+                "60",
+            ),
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            publisher = camera.declare_publisher("zed/left/image")
+            # Keep feeding until echo has what it needs (it subscribes at its own pace).
+            deadline = time.monotonic() + 60
+            image = FRAMES[0][0]
+            meta = RawFrameMeta(W, H).to_msgpack()
+            while echo.poll() is None and time.monotonic() < deadline:
+                publisher.put(image.tobytes(), attachment=meta)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    echo.wait(timeout=0.5)
+            out, err = echo.communicate(timeout=10)
+        finally:
+            if echo.poll() is None:
+                echo.kill()
+                echo.communicate()
+        assert echo.returncode == 0, err
+        lines = [json.loads(line) for line in out.splitlines()]
+        assert len(lines) == 2
+        tag_lines = [line for line in lines if line["key"] == "tag"]
+        record_lines = [line for line in lines if line["key"] == "perception/tags"]
+        assert all(line["tag_id"] == 2 for line in tag_lines)
+        assert all(line["selected"]["tag_id"] == 2 for line in record_lines)
+
+        status = subprocess.run(
+            cli_command("status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "5"),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+        assert status.returncode == 0, status.stderr
+        assert json.loads(status.stdout)["service"] == "zenoh-perception"
+
+
+def test_status_exits_1_when_no_service_answers(endpoint: str) -> None:
+    result = subprocess.run(
+        cli_command("status", "-l", endpoint, "--no-multicast-scouting", "--timeout", "0.5"),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 1
+    assert "no perception service answered" in result.stderr
+
+
+def test_sigterm_exits_0_within_2_seconds(endpoint: str) -> None:
+    with running_cli("run", "-l", endpoint, "--no-multicast-scouting") as proc:
+        with open_session(connect=[endpoint]) as probe:
+            wait_for_status(probe)
+        started = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+        elapsed = time.monotonic() - started
+        output = proc.stdout.read() if proc.stdout else ""
+    assert proc.returncode == 0, output
+    assert elapsed < 2.0, f"took {elapsed:.2f} s"
+    assert "event=stopped" in output
+
+
+def test_invalid_settings_exit_2_with_a_message() -> None:
+    result = subprocess.run(
+        cli_command("run", "--policy", "nearest", "--no-multicast-scouting"),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 2
+    assert "policy must be one of" in result.stderr

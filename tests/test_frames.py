@@ -1,0 +1,281 @@
+"""Frame decoding: raw + attachment and sensor_msgs/Image CDR, good and hostile input."""
+
+from __future__ import annotations
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from zenoh_perception.errors import (
+    AttachmentError,
+    DimensionError,
+    FrameDecodeError,
+    ImageCdrError,
+    SizeMismatchError,
+    UnsupportedEncodingError,
+)
+from zenoh_perception.frames import (
+    ENCODINGS,
+    MAX_ATTACHMENT_BYTES,
+    RawFrameMeta,
+    decode_attachment,
+    decode_image_cdr,
+    decode_raw_frame,
+    encode_image_cdr,
+    to_gray,
+)
+
+
+def _pixels(height: int, width: int, channels: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    return rng.integers(0, 256, size=shape, dtype=np.uint8)
+
+
+def _padded(pixels: np.ndarray, step: int) -> bytes:
+    height = pixels.shape[0]
+    rows = pixels.reshape(height, -1)
+    out = np.full((height, step), 0xAB, dtype=np.uint8)
+    out[:, : rows.shape[1]] = rows
+    return out.tobytes()
+
+
+# -- raw frames ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+@pytest.mark.parametrize("padding", [0, 3, 64])
+def test_raw_frame_is_a_view_of_the_payload(encoding: str, padding: int) -> None:
+    channels = ENCODINGS[encoding].channels
+    pixels = _pixels(7, 11, channels)
+    step = 11 * channels + padding
+    payload = _padded(pixels, step)
+    meta = RawFrameMeta(11, 7, encoding, step=step, stamp_ns=42, frame_id="cam", seq=9)
+    frame = decode_raw_frame(payload, meta.to_msgpack())
+    np.testing.assert_array_equal(frame.pixels, pixels)
+    assert np.shares_memory(frame.pixels, np.frombuffer(payload, dtype=np.uint8))
+    assert (frame.width, frame.height, frame.stamp_ns, frame.frame_id, frame.seq) == (
+        11,
+        7,
+        42,
+        "cam",
+        9,
+    )
+    assert not frame.pixels.flags.writeable
+
+
+def test_attachment_defaults_to_bgra8_without_step() -> None:
+    pixels = _pixels(4, 5, 4)
+    frame = decode_raw_frame(pixels.tobytes(), msgpack.packb({"width": 5, "height": 4}))
+    assert frame.encoding.name == "bgra8"
+    assert frame.stamp_ns is None and frame.seq is None and frame.frame_id == ""
+    np.testing.assert_array_equal(frame.pixels, pixels)
+
+
+@pytest.mark.parametrize(
+    ("attachment", "error"),
+    [
+        (None, AttachmentError),
+        (b"", AttachmentError),
+        (b"\xc1", AttachmentError),  # never-used msgpack byte
+        (msgpack.packb([1, 2, 3]), AttachmentError),
+        (msgpack.packb({"height": 4}), AttachmentError),
+        (msgpack.packb({"width": "5", "height": 4}), AttachmentError),
+        (msgpack.packb({"width": True, "height": 4}), AttachmentError),
+        (msgpack.packb({"width": 5.0, "height": 4}), AttachmentError),
+        (msgpack.packb({"width": 5, "height": 4, "encoding": 3}), AttachmentError),
+        (msgpack.packb({"width": 5, "height": 4, "stamp_ns": -1}), AttachmentError),
+        (msgpack.packb({"width": 5, "height": 4, "frame_id": "x" * 300}), AttachmentError),
+        (
+            msgpack.packb({"width": 5, "height": 4, "x": "y" * MAX_ATTACHMENT_BYTES}),
+            AttachmentError,
+        ),
+        (msgpack.packb({"width": 5, "height": 4, "encoding": "yuv422"}), UnsupportedEncodingError),
+        (msgpack.packb({"width": 0, "height": 4}), DimensionError),
+        (msgpack.packb({"width": -5, "height": 4}), DimensionError),
+        (msgpack.packb({"width": 5, "height": 1 << 40}), DimensionError),
+        (msgpack.packb({"width": 5, "height": 4, "step": 19}), DimensionError),
+        (msgpack.packb({"width": 5, "height": 4, "step": 1 << 40}), DimensionError),
+        (msgpack.packb({"width": 5, "height": 5}), SizeMismatchError),
+        (msgpack.packb({"width": 5, "height": 4, "step": 24}), SizeMismatchError),
+    ],
+)
+def test_inconsistent_raw_frames_are_rejected_with_their_reason(
+    attachment: bytes | None, error: type[FrameDecodeError]
+) -> None:
+    payload = bytes(5 * 4 * 4)
+    with pytest.raises(error) as info:
+        decode_raw_frame(payload, attachment)
+    assert info.value.reason == error.reason
+
+
+def test_reasons_are_distinct_per_concern() -> None:
+    reasons = {
+        cls.reason
+        for cls in (
+            AttachmentError,
+            ImageCdrError,
+            UnsupportedEncodingError,
+            DimensionError,
+            SizeMismatchError,
+        )
+    }
+    assert len(reasons) == 5
+
+
+def test_attachment_roundtrip_keeps_every_field() -> None:
+    meta = RawFrameMeta(1280, 720, "rgb8", step=3840, stamp_ns=1, frame_id="zed", seq=-3)
+    assert decode_attachment(meta.to_msgpack()) == meta
+
+
+# -- sensor_msgs/Image CDR ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+@pytest.mark.parametrize("padding", [0, 4])
+def test_cdr_image_roundtrip_is_zero_copy(encoding: str, padding: int) -> None:
+    channels = ENCODINGS[encoding].channels
+    pixels = _pixels(6, 10, channels, seed=3)
+    raw = bytes(
+        encode_image_cdr(
+            pixels,
+            encoding,
+            stamp_ns=1_700_000_000_123_456_789,
+            frame_id="zed_left",
+            step=10 * channels + padding,
+        )
+    )
+    frame = decode_image_cdr(raw)
+    np.testing.assert_array_equal(frame.pixels, pixels)
+    assert frame.stamp_ns == 1_700_000_000_123_456_789
+    assert frame.frame_id == "zed_left"
+    assert np.shares_memory(frame.pixels, np.frombuffer(raw, dtype=np.uint8))
+
+
+def _good_cdr() -> bytes:
+    return bytes(encode_image_cdr(_pixels(4, 6, 4), "bgra8", stamp_ns=5, frame_id="f"))
+
+
+@pytest.mark.parametrize("cut", [0, 3, 4, 10, 30, 60, -1])
+def test_truncated_cdr_is_rejected(cut: int) -> None:
+    raw = _good_cdr()
+    with pytest.raises(ImageCdrError):
+        decode_image_cdr(raw[:cut])
+
+
+def test_cdr_with_trailing_garbage_is_rejected() -> None:
+    with pytest.raises(ImageCdrError):
+        decode_image_cdr(_good_cdr() + b"\x00" * 8)
+
+
+def test_cdr_with_unknown_encoding_is_rejected() -> None:
+    raw = bytes(encode_image_cdr(_pixels(2, 2, 3), "bgr8"))
+    tampered = raw.replace(b"bgr8", b"yuv8")
+    with pytest.raises(UnsupportedEncodingError):
+        decode_image_cdr(tampered)
+
+
+def test_cdr_whose_step_and_data_disagree_is_rejected() -> None:
+    # A 4x6 bgra8 image claiming 7 rows: data holds 96 bytes, step * height needs 168.
+    raw = bytearray(_good_cdr())
+    height_at = raw.index((4).to_bytes(4, "little") + (6).to_bytes(4, "little"))
+    raw[height_at : height_at + 4] = (7).to_bytes(4, "little")
+    with pytest.raises(SizeMismatchError):
+        decode_image_cdr(bytes(raw))
+
+
+# -- grey conversion ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_gray_conversion_matches_the_bgr_reference(encoding: str) -> None:
+    import cv2
+
+    bgr = _pixels(8, 9, 3, seed=5)
+    converters = {
+        "bgra8": cv2.COLOR_BGR2BGRA,
+        "bgr8": None,
+        "rgba8": cv2.COLOR_BGR2RGBA,
+        "rgb8": cv2.COLOR_BGR2RGB,
+        "mono8": cv2.COLOR_BGR2GRAY,
+    }
+    code = converters[encoding]
+    pixels = bgr if code is None else cv2.cvtColor(bgr, code)
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    frame = decode_raw_frame(
+        _padded(pixels, pixels.reshape(8, -1).shape[1] + 8),
+        RawFrameMeta(9, 8, encoding, step=pixels.reshape(8, -1).shape[1] + 8).to_msgpack(),
+    )
+    np.testing.assert_array_equal(to_gray(frame), expected)
+
+
+# -- properties: any bytes give a frame or the typed error, never another exception ------------
+
+
+@given(payload=st.binary(max_size=256), attachment=st.one_of(st.none(), st.binary(max_size=64)))
+def test_raw_decoder_never_raises_anything_but_frame_errors(
+    payload: bytes, attachment: bytes | None
+) -> None:
+    try:
+        frame = decode_raw_frame(payload, attachment)
+    except FrameDecodeError:
+        return
+    # Anything accepted is fully backed by the payload.
+    assert frame.pixels.nbytes <= len(payload)
+
+
+_attachment_values = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(2**63), max_value=2**64 - 1),
+    st.floats(allow_nan=True),
+    st.text(max_size=8),
+    st.binary(max_size=8),
+    st.lists(st.integers(min_value=-(2**63), max_value=2**63 - 1), max_size=3),
+)
+
+
+@given(
+    fields=st.dictionaries(
+        st.sampled_from(
+            ["width", "height", "encoding", "step", "stamp_ns", "frame_id", "seq", "x"]
+        ),
+        _attachment_values,
+    ),
+    size=st.integers(min_value=0, max_value=512),
+)
+def test_structured_attachments_give_a_frame_or_a_typed_error(
+    fields: dict[str, object], size: int
+) -> None:
+    payload = bytes(size)
+    try:
+        frame = decode_raw_frame(payload, msgpack.packb(fields))
+    except FrameDecodeError:
+        return
+    assert frame.pixels.nbytes <= size
+    assert frame.width == fields["width"] and frame.height == fields["height"]
+
+
+@given(data=st.data())
+def test_mutated_cdr_gives_a_frame_or_a_typed_error(data: st.DataObject) -> None:
+    raw = bytearray(_good_cdr())
+    for _ in range(data.draw(st.integers(min_value=1, max_value=6))):
+        index = data.draw(st.integers(min_value=0, max_value=len(raw) - 1))
+        raw[index] = data.draw(st.integers(min_value=0, max_value=255))
+    cut = data.draw(st.integers(min_value=0, max_value=len(raw)))
+    try:
+        frame = decode_image_cdr(bytes(raw[:cut]))
+    except FrameDecodeError:
+        return
+    assert frame.pixels.nbytes <= cut
+
+
+@given(payload=st.binary(max_size=512))
+def test_arbitrary_cdr_bytes_give_a_frame_or_a_typed_error(payload: bytes) -> None:
+    try:
+        frame = decode_image_cdr(payload)
+    except FrameDecodeError:
+        return
+    assert frame.pixels.nbytes <= len(payload)

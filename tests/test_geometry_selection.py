@@ -1,0 +1,114 @@
+"""Tag geometry, the closeness metric and the selection policies."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from zenoh_perception.geometry import (
+    closeness_from_area,
+    closeness_from_distance,
+    polygon_area,
+    tag_center,
+)
+from zenoh_perception.selection import (
+    NO_TAG,
+    Policy,
+    TagObservation,
+    select_tag,
+    selected_message,
+)
+
+
+def _square(x0: float, y0: float, side: float) -> np.ndarray:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def test_center_is_the_mean_of_the_corners() -> None:
+    corners = np.array([[10.0, 20.0], [30.0, 22.0], [28.0, 40.0], [12.0, 44.0]])
+    assert tag_center(corners) == pytest.approx((20.0, 31.5))
+
+
+def test_area_of_a_square_and_a_rotated_square() -> None:
+    assert polygon_area(_square(5, 5, 10)) == pytest.approx(100.0)
+    diamond = np.array([[0.0, -5.0], [5.0, 0.0], [0.0, 5.0], [-5.0, 0.0]])
+    assert polygon_area(diamond) == pytest.approx(50.0)
+    assert polygon_area(diamond[::-1]) == pytest.approx(50.0)  # orientation-free
+
+
+def test_closeness_reference_values() -> None:
+    # A 640x480 frame: a tag of 1/4 of the image area is at 1 - sqrt(1/4) = 0.5.
+    assert closeness_from_area(640 * 480 / 4, 640, 480) == pytest.approx(0.5)
+    assert closeness_from_area(640 * 480, 640, 480) == 0.0
+    assert closeness_from_area(0.0, 640, 480) == 1.0
+    # The rover stops at about 0.93 at 640x480: a tag of about 38x38 px.
+    side = math.sqrt((1 - 0.93) ** 2 * 640 * 480)
+    assert closeness_from_area(side * side, 640, 480) == pytest.approx(0.93)
+
+
+@given(
+    area=st.one_of(st.floats(min_value=-1e12, max_value=1e12), st.just(math.nan)),
+    width=st.integers(min_value=0, max_value=10000),
+    height=st.integers(min_value=0, max_value=10000),
+)
+def test_closeness_is_always_in_the_unit_interval(area: float, width: int, height: int) -> None:
+    value = closeness_from_area(area, width, height)
+    assert 0.0 <= value <= 1.0
+
+
+@given(st.floats(allow_nan=True), st.floats(allow_nan=True))
+def test_distance_closeness_is_clamped(distance: float, max_range: float) -> None:
+    assert 0.0 <= closeness_from_distance(distance, max_range) <= 1.0
+
+
+def _tag(tag_id: int, x: float, y: float, closeness: float) -> TagObservation:
+    corners = tuple((float(a), float(b)) for a, b in _square(x - 5, y - 5, 10))
+    return TagObservation(tag_id, x, y, closeness, corners, 100.0)
+
+
+def test_no_detection_selects_the_dummy() -> None:
+    assert select_tag([], 640, 480) is None
+    assert selected_message([], 640, 480) == NO_TAG
+    assert (NO_TAG.tag_id, NO_TAG.x_tag_center_pixel, NO_TAG.closeness_metric) == (-1, 0.0, 0.0)
+
+
+def test_closest_policy_picks_lowest_closeness() -> None:
+    tags = [_tag(1, 320, 240, 0.9), _tag(2, 10, 10, 0.4), _tag(3, 600, 400, 0.7)]
+    assert selected_message(tags, 640, 480).tag_id == 2
+
+
+def test_closest_ties_go_to_the_centre_then_the_lower_id() -> None:
+    tags = [_tag(5, 10, 10, 0.5), _tag(4, 300, 240, 0.5), _tag(9, 325, 240, 0.5)]
+    assert selected_message(tags, 640, 480).tag_id == 9
+    twins = [_tag(8, 300, 240, 0.5), _tag(6, 340, 240, 0.5)]  # equally far from the centre
+    assert selected_message(twins, 640, 480).tag_id == 6
+
+
+def test_center_policy_picks_nearest_the_image_centre() -> None:
+    tags = [_tag(1, 320, 250, 0.9), _tag(2, 10, 10, 0.1)]
+    assert selected_message(tags, 640, 480, Policy.CENTER).tag_id == 1
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(min_value=0, max_value=49),
+            st.floats(min_value=0, max_value=640),
+            st.floats(min_value=0, max_value=480),
+            st.floats(min_value=0, max_value=1),
+        ),
+        min_size=1,
+        max_size=8,
+    )
+)
+def test_selection_is_the_minimum_and_order_independent(
+    raw: list[tuple[int, float, float, float]],
+) -> None:
+    tags = [_tag(*fields) for fields in raw]
+    chosen = selected_message(tags, 640, 480)
+    assert chosen.closeness_metric == min(t.closeness for t in tags)
+    assert selected_message(list(reversed(tags)), 640, 480) == chosen

@@ -1,0 +1,164 @@
+"""The perception/tags record, its JSON Schemas, the mailbox and the counters."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import msgpack
+import pytest
+
+from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.frames import RawFrameMeta, decode_attachment
+from zenoh_perception.mailbox import LatestMailbox
+from zenoh_perception.records import FrameRecord, TagCodec, decode_record, f32
+from zenoh_perception.selection import NO_TAG, TagObservation
+from zenoh_perception.stats import LogGate, ServiceStats
+
+SCHEMAS = Path(__file__).resolve().parent.parent / "schemas"
+
+
+def _schema(name: str) -> dict[str, Any]:
+    data: dict[str, Any] = json.loads((SCHEMAS / name).read_text())
+    jsonschema.Draft202012Validator.check_schema(data)
+    return data
+
+
+def _record(tags: tuple[TagObservation, ...]) -> FrameRecord:
+    selected = tags[0].message() if tags else NO_TAG
+    return FrameRecord(
+        stamp_ns=1_700_000_000_000_000_000,
+        frame_id="zed_left",
+        seq=12,
+        width=1280,
+        height=720,
+        selected=selected,
+        tags=tags,
+        timing_ms={"latency_ms": 3.25, "detect_ms": 2.0},
+        source="raw",
+    )
+
+
+TAG = TagObservation(
+    7,
+    100.1,
+    200.2,
+    0.8123456789,
+    ((90.0, 190.0), (110.0, 190.0), (110.0, 210.0), (90.0, 210.0)),
+    400.0,
+    distance_m=2.5,
+    rvec=(0.1, 0.2, 0.3),
+    tvec=(0.0, 0.5, 2.4),
+)
+
+
+@pytest.mark.parametrize("tags", [(), (TAG,)])
+def test_record_roundtrip_matches_the_schema(tags: tuple[TagObservation, ...]) -> None:
+    record = decode_record(_record(tags).to_msgpack())
+    jsonschema.validate(record, _schema("perception-tags.schema.json"))
+    assert record["seq"] == 12 and record["width"] == 1280 and record["source"] == "raw"
+    assert len(record["tags"]) == len(tags)
+    if tags:
+        assert record["tags"][0]["corners"][2] == [110.0, 210.0]
+        assert record["tags"][0]["distance_m"] == 2.5
+    else:
+        assert record["selected"]["tag_id"] == -1
+
+
+def test_record_selected_equals_the_tag_message_bit_for_bit() -> None:
+    codec = TagCodec()
+    record = decode_record(_record((TAG,)).to_msgpack())
+    tag = codec.decode(bytes(codec.encode(TAG.message())))
+    assert record["selected"]["closeness_metric"] == tag.closeness_metric == f32(0.8123456789)
+    assert record["selected"]["x_tag_center_pixel"] == tag.x_tag_center_pixel
+
+
+def test_schema_rejects_a_record_without_selection() -> None:
+    record = decode_record(_record(()).to_msgpack())
+    del record["selected"]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(record, _schema("perception-tags.schema.json"))
+
+
+@pytest.mark.parametrize("payload", [b"", b"\xc1", msgpack.packb([1]), msgpack.packb({"seq": 1})])
+def test_decode_record_rejects_garbage(payload: bytes) -> None:
+    with pytest.raises(MessageDecodeError):
+        decode_record(payload)
+
+
+def test_attachment_schema_agrees_with_the_decoder() -> None:
+    schema = _schema("frame-attachment.schema.json")
+    meta = RawFrameMeta(640, 480, "bgr8", step=1920, stamp_ns=5, frame_id="cam", seq=3)
+    jsonschema.validate(msgpack.unpackb(meta.to_msgpack()), schema)
+    assert decode_attachment(meta.to_msgpack()) == meta
+    assert set(schema["properties"]["encoding"]["enum"]) == {
+        "bgra8",
+        "bgr8",
+        "rgba8",
+        "rgb8",
+        "mono8",
+    }
+
+
+# -- mailbox --------------------------------------------------------------------------------
+
+
+def test_mailbox_keeps_only_the_newest_and_counts_drops() -> None:
+    box: LatestMailbox[int] = LatestMailbox()
+    assert box.put(1) is False
+    assert box.put(2) is True
+    assert box.put(3) is True
+    assert box.take(0.0) == 3
+    assert box.take(0.0) is None
+    assert box.dropped == 2
+
+
+def test_mailbox_wakes_a_waiting_consumer_and_close_releases_it() -> None:
+    box: LatestMailbox[str] = LatestMailbox()
+    got: list[str | None] = []
+    consumer = threading.Thread(target=lambda: got.append(box.take(10.0)))
+    consumer.start()
+    box.put("frame")
+    consumer.join(10.0)
+    assert got == ["frame"]
+    closer = threading.Thread(target=lambda: got.append(box.take(10.0)))
+    closer.start()
+    box.close()
+    closer.join(10.0)
+    assert got == ["frame", None] and not closer.is_alive()
+    assert box.put("late") is False and box.take(0.0) is None
+
+
+# -- stats ----------------------------------------------------------------------------------
+
+
+def test_stats_percentiles_and_counts() -> None:
+    now = [100.0]
+    stats = ServiceStats(clock=lambda: now[0])
+    for i in range(100):
+        stats.on_received(dropped_one=i % 10 == 0)
+        now[0] += 0.1
+        stats.on_processed(float(i + 1))
+    stats.on_rejected("bad_cdr")
+    stats.on_rejected("bad_cdr")
+    snap = stats.snapshot()
+    assert (snap.received, snap.processed, snap.dropped) == (100, 100, 10)
+    assert snap.rejected == {"bad_cdr": 2}
+    assert snap.latency_p50_ms == pytest.approx(50.5)
+    assert snap.latency_p99_ms == pytest.approx(99.01)
+    assert snap.fps == pytest.approx(10.0)
+    assert snap.as_dict()["frames"]["rejected"] == 2
+
+
+def test_log_gate_admits_once_per_interval_and_reports_suppressed() -> None:
+    now = [0.0]
+    gate = LogGate(5.0, clock=lambda: now[0])
+    assert gate.admit("bad_cdr") == 0
+    assert gate.admit("bad_cdr") is None
+    assert gate.admit("bad_cdr") is None
+    assert gate.admit("size_mismatch") == 0
+    now[0] = 5.0
+    assert gate.admit("bad_cdr") == 2
