@@ -77,8 +77,8 @@ def test_edges_are_box_filtered_at_the_true_position(x0: float, y0: float, side:
     # Rows / columns through the black border integrate to the exact side length.
     row = round(y0 + side / 12.0)
     col = round(x0 + side / 12.0)
-    assert dark[row].sum() == pytest.approx(side, abs=0.03)
-    assert dark[:, col].sum() == pytest.approx(side, abs=0.03)
+    assert dark[row].sum() == pytest.approx(side, abs=0.04)
+    assert dark[:, col].sum() == pytest.approx(side, abs=0.04)
     # The pixel straddling the left edge is darkened by exactly the covered area.
     edge_px = math.floor(x0 + 0.5)
     covered = edge_px + 0.5 - x0
@@ -201,6 +201,15 @@ def test_truth_pose_reprojects_to_truth_corners(
     (truth,) = scene.markers
     projected, _ = cv2.projectPoints(square_corners(0.2), truth.rvec, truth.tvec, cam.matrix, None)
     assert np.allclose(projected.reshape(4, 2), truth.corners, atol=1e-6)
+    # same convention as cv2.solvePnP (SQPnP here: IPPE_SQUARE gives NaN on some exactly
+    # fronto-parallel noise-free quads in OpenCV 5.0)
+    ok, rvec, tvec = cv2.solvePnP(
+        square_corners(0.2), truth.corners, cam.matrix, None, flags=cv2.SOLVEPNP_SQPNP
+    )
+    assert ok and np.allclose(tvec.reshape(3), truth.tvec, atol=1e-6)
+    rotation, _ = cv2.Rodrigues(rvec)
+    truth_rotation, _ = cv2.Rodrigues(truth.rvec)
+    assert np.allclose(rotation, truth_rotation, atol=1e-6)
     # the centre is where the diagonals cross
     a, c = truth.corners[0], truth.corners[2]
     b, d = truth.corners[1], truth.corners[3]

@@ -11,13 +11,15 @@ zone), ordered top-left, top-right, bottom-right, bottom-left as seen in the mar
 the order cv2.aruco reports. A marker bitmap of S x S pixels has its outer corners at
 (-0.5, -0.5), (S-0.5, -0.5), (S-0.5, S-0.5), (-0.5, S-0.5) in bitmap coordinates; rendering maps
 exactly those points to the target quad with a homography and anti-aliases by supersampling
-(box filter), so sub-pixel truth is meaningful: a row crossing an axis-aligned edge integrates
-to the true edge position within 1/255 px. `centre` in the truth is the projection of the 3D
-marker centre (intersection of the diagonals), `corner_mean` the mean of the corners.
+(box filter), so sub-pixel truth is meaningful: a pixel straddling an axis-aligned edge holds
+the covered area to ~0.015 and a row across a marker integrates to its side within ~0.025 px
+(cv2.cornerSubPix itself lands ~0.1 px inside such corners; their mean is unbiased). `centre`
+in the truth is the projection of the 3D marker centre (intersection of the diagonals),
+`corner_mean` the mean of the corners (what a plain detector reports as centre).
 
 3D: camera frame x right, y down, z forward; marker frame (OpenCV ArUco) x right, y up, z out of
-the printed face, so rvec/tvec match `cv2.solvePnP(square_corners(size), corners, K, None,
-flags=cv2.SOLVEPNP_IPPE_SQUARE)`. `distance_m` is the norm of tvec (marker centre).
+the printed face, so rvec/tvec are what `cv2.solvePnP(square_corners(size), corners, K, None)`
+returns (any solver; IPPE_SQUARE's object points). `distance_m` is the norm of tvec.
 
 Main entry points
 -----------------

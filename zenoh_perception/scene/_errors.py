@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from zenoh_perception.errors import PerceptionError
 
-class SceneError(ValueError):
+
+class SceneError(PerceptionError, ValueError):
     """Invalid scene, camera, marker or effect parameters."""

@@ -134,6 +134,10 @@ class Scene:
         """Tag ids of the rendered markers."""
         return tuple(m.tag_id for m in self.markers)
 
+    def gray(self) -> npt.NDArray[np.uint8]:
+        """The image converted to single-channel gray (what ArUco detectors consume)."""
+        return np.asarray(cv2.cvtColor(self.image, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
+
 
 @dataclass(frozen=True)
 class DistractorPose:
@@ -572,7 +576,7 @@ class SceneGenerator:
         phases = rng.uniform(0.0, 2 * math.pi, (3, 3))
         amps = rng.uniform(0.3, 1.0, (3, 3))
         amps *= shake_deg / np.sqrt(np.sum(amps**2, axis=1, keepdims=True) / 2.0)
-        weave_amp = float(rng.uniform(0.0, 0.25))
+        weave_amp = float(rng.uniform(0.0, 0.25)) if speed_mps > 0 else 0.0
         weave_w = 2 * math.pi / float(rng.uniform(6.0, 14.0))
         weave_phase = float(rng.uniform(0, 2 * math.pi))
         for i in range(n_frames):
