@@ -135,7 +135,7 @@ def query_status(
 
 
 def wait_for_status(
-    session: zenoh.Session, key: str = "perception/status", timeout: float = 20.0
+    session: zenoh.Session, key: str = "perception/status", timeout: float = 60.0
 ) -> dict[str, Any]:
     """Poll the status queryable until a service answers (it is then fully started)."""
     deadline = time.monotonic() + timeout

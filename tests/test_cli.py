@@ -176,3 +176,59 @@ def test_invalid_settings_exit_2_with_a_message() -> None:
     )
     assert result.returncode == 2
     assert "policy must be one of" in result.stderr
+
+
+def test_demo_runs_camera_service_and_echo_in_one_command() -> None:
+    result = subprocess.run(
+        cli_command(
+            "demo",
+            "--no-multicast-scouting",
+            "--limit",
+            "12",
+            "--fps",
+            "30",
+            "--stats-interval-s",
+            "0",
+        ),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stdout.splitlines() if line.startswith("[perception/tags]")]
+    assert len(lines) >= 3  # latest-frame-wins skips frames when the machine is loaded
+    assert any("selected=-1" not in line for line in lines)  # tags are in view
+
+
+def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting"),
+        open_session(connect=[endpoint]) as probe,
+    ):
+        wait_for_status(probe)
+        records = Collector(probe, "perception/tags")
+        camera = subprocess.run(
+            cli_command(
+                "demo",
+                "--camera-only",
+                "--format",
+                "cdr",
+                "-e",
+                endpoint,
+                "--no-multicast-scouting",
+                "--limit",
+                "20",
+                "--fps",
+                "20",
+            ),
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert camera.returncode == 0, camera.stderr
+        record = decode_record(records.get(timeout=20).payload)
+        assert record["source"] == "cdr" and record["frame_id"] == "demo"

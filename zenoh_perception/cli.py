@@ -11,8 +11,8 @@ from collections.abc import Callable, Sequence
 
 import zenoh
 
-from zenoh_perception import __version__, echo, service, status
-from zenoh_perception.errors import PerceptionError
+from zenoh_perception import __version__, demo, echo, replay, service, status
+from zenoh_perception.errors import PerceptionError, SettingsError
 from zenoh_perception.settings import add_settings_arguments, settings_from_args
 from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
 
@@ -61,6 +61,22 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return status.main(zenoh_config_from_args(args), key=args.status_key, timeout=args.timeout)
 
 
+def _cmd_demo(args: argparse.Namespace) -> int:
+    if args.fps <= 0:
+        msg = "--fps must be positive"
+        raise SettingsError(msg)
+    return demo.main(
+        zenoh_config_from_args(args),
+        settings_from_args(args),
+        resolution=args.resolution,
+        fps=args.fps,
+        cdr=args.format == "cdr",
+        camera_only=args.camera_only,
+        limit=args.limit,
+        stop=_stop_on_signals(),
+    )
+
+
 def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
         "run",
@@ -70,6 +86,18 @@ def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_zenoh_arguments(parser)
     add_settings_arguments(parser)
     parser.set_defaults(handler=_cmd_run)
+
+
+def _add_demo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "demo",
+        help="synthetic camera + service + echo in one process (no camera needed)",
+        description="A rover driving toward synthetic tags, the service, and its output.",
+    )
+    demo.add_demo_arguments(parser)
+    add_zenoh_arguments(parser)
+    add_settings_arguments(parser)
+    parser.set_defaults(handler=_cmd_demo)
 
 
 def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -99,8 +127,10 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 # returning the exit code). Commands living in their own module expose ``register(sub)``.
 _COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None], ...] = (
     _add_run,
+    _add_demo,
     _add_echo,
     _add_status,
+    replay.register,
 )
 
 
