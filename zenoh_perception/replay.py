@@ -1,0 +1,467 @@
+"""``zenoh-perception replay PATH``: publish recorded frames into Zenoh as a camera would.
+
+The frames come from :mod:`zenoh_perception.sources` (rosbag2, video, images). This module
+holds the pure pacing and progress-bar code, the Zenoh publishing loop (:func:`main`) and the
+``replay`` subcommand's arguments (:func:`register`).
+
+Pacing: ``recorded`` follows the sources' recording clock (bag receive times, video FPS, image
+rate), ``rate`` sends at a fixed rate, ``asap`` as fast as Zenoh takes them. The publisher uses
+congestion control BLOCK, so a slow link slows the replay instead of dropping frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable
+from contextlib import closing
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+from typing import Final, TextIO
+
+import zenoh
+
+from zenoh_perception.sources import (
+    DEFAULT_FRAME_ID,
+    DEFAULT_RATE_HZ,
+    FrameSource,
+    ReplayError,
+    SourceFrame,
+    open_source,
+)
+from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+
+log = logging.getLogger("zenoh_perception.replay")
+
+DEFAULT_KEY: Final = "zed/left/image"
+_RAW_ENCODING: Final = zenoh.Encoding.APPLICATION_OCTET_STREAM
+_CDR_ENCODING: Final = zenoh.Encoding.APPLICATION_CDR
+_WAIT_POLL_S: Final = 0.1
+
+Clock = Callable[[], float]
+
+
+class Pacing(StrEnum):
+    RECORDED = "recorded"
+    RATE = "rate"
+    ASAP = "asap"
+
+
+# -- pure: pacing ----------------------------------------------------------------------------
+
+
+class Pacer:
+    """When each frame is due, on a monotonic clock in seconds read by the caller.
+
+    ``recorded`` keeps the spacing of the frames' recording stamps; ``rate`` spaces frames
+    ``1 / rate_hz`` apart; ``asap`` makes every frame due at once. Deadlines are measured from an
+    anchor (no drift). The anchor moves when the recording clock jumps back (a new ``--loop``
+    pass continues one interval after the last frame) or when sending lags more than
+    ``max_lag_s`` behind (then frames are not sent in a burst to catch up).
+    """
+
+    def __init__(
+        self, pacing: Pacing, rate_hz: float | None = None, *, max_lag_s: float = 1.0
+    ) -> None:
+        if pacing is Pacing.RATE and (
+            rate_hz is None or not math.isfinite(rate_hz) or rate_hz <= 0
+        ):
+            msg = f"fixed-rate pacing needs a positive rate, not {rate_hz!r}"
+            raise ReplayError(msg)
+        self.pacing = pacing
+        self._period_s = 1.0 / rate_hz if rate_hz else 0.0
+        self._max_lag_s = max_lag_s
+        self._anchor_s: float | None = None
+        self._anchor_stamp = 0
+        self._count = 0
+        self._last_stamp = 0
+        self._last_due = 0.0
+        self._interval_s = 0.0
+
+    def due(self, stamp_ns: int, now: float) -> float:
+        """The clock time at which the frame stamped ``stamp_ns`` should be sent."""
+        if self.pacing is Pacing.ASAP:
+            return now
+        if self._anchor_s is None:
+            self._reanchor(now, stamp_ns)
+        elif self.pacing is Pacing.RECORDED and stamp_ns < self._last_stamp:
+            self._reanchor(max(now, self._last_due + self._interval_s), stamp_ns)
+        due = self._target(stamp_ns)
+        if due < now - self._max_lag_s:
+            self._reanchor(now, stamp_ns)
+            due = now
+        if self.pacing is Pacing.RECORDED and stamp_ns > self._last_stamp and self._count:
+            self._interval_s = (stamp_ns - self._last_stamp) / 1e9
+        self._count += 1
+        self._last_stamp = stamp_ns
+        self._last_due = due
+        return due
+
+    def _reanchor(self, at: float, stamp_ns: int) -> None:
+        self._anchor_s = at
+        self._anchor_stamp = stamp_ns
+        self._count = 0
+
+    def _target(self, stamp_ns: int) -> float:
+        anchor = self._anchor_s if self._anchor_s is not None else 0.0
+        if self.pacing is Pacing.RATE:
+            return anchor + self._count * self._period_s
+        return anchor + (stamp_ns - self._anchor_stamp) / 1e9
+
+
+# -- pure: progress bar ----------------------------------------------------------------------
+
+
+def render_progress(done: int, total: int | None, elapsed_s: float, *, width: int = 30) -> str:
+    """One progress line: a bar when ``total`` is known, the count and the mean frame rate."""
+    fps = done / elapsed_s if elapsed_s > 0 else 0.0
+    if total:
+        filled = min(width, done * width // total)
+        bar = "#" * filled + "." * (width - filled)
+        percent = min(100, done * 100 // total)
+        return f"replay [{bar}] {percent:3d}% {done}/{total} frames {fps:.1f} fps"
+    return f"replay {done} frames {fps:.1f} fps"
+
+
+class ProgressBar:
+    """Redraws :func:`render_progress` in place (carriage return) at most every
+    ``min_interval_s``; :meth:`finish` draws the final state and ends the line."""
+
+    def __init__(
+        self, stream: TextIO, total: int | None, *, start: float, min_interval_s: float = 0.2
+    ) -> None:
+        self._stream = stream
+        self._total = total
+        self._start = start
+        self._min_interval_s = min_interval_s
+        self._last_draw: float | None = None
+        self._width = 0
+
+    def update(self, done: int, now: float) -> None:
+        if self._last_draw is not None and now - self._last_draw < self._min_interval_s:
+            return
+        self._draw(done, now)
+
+    def finish(self, done: int, now: float) -> None:
+        self._draw(done, now)
+        self._stream.write("\n")
+        self._stream.flush()
+
+    def _draw(self, done: int, now: float) -> None:
+        self._last_draw = now
+        line = render_progress(done, self._total, now - self._start)
+        # Pad with spaces so a shorter line fully covers the previous one.
+        self._stream.write("\r" + line.ljust(self._width))
+        self._stream.flush()
+        self._width = len(line)
+
+
+# -- the Zenoh publishing loop ---------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class ReplayOptions:
+    """How :func:`main` publishes a source (the ``replay`` flags, parsed)."""
+
+    key: str = DEFAULT_KEY
+    pacing: Pacing = Pacing.RECORDED
+    rate_hz: float | None = None
+    loop: bool = False
+    limit: int = 0  # frames in total; 0 = no limit
+    wait_for_subscriber: bool = True
+    subscriber_timeout_s: float | None = None  # None = wait until stopped
+    progress: bool = False
+
+
+def _is_matching(publisher: zenoh.Publisher) -> bool:
+    # zenoh-python 1.x returns a MatchingStatus here although its stub says bool.
+    status: object = publisher.matching_status
+    return bool(getattr(status, "matching", status))
+
+
+def _wait_for_subscriber(
+    publisher: zenoh.Publisher,
+    *,
+    timeout_s: float | None,
+    stop: threading.Event,
+    clock: Clock,
+) -> bool:
+    """True once ``publisher`` has a matching subscriber; False on timeout or stop."""
+    matched = threading.Event()
+
+    def on_status(status: zenoh.MatchingStatus) -> None:
+        if status.matching:
+            matched.set()
+
+    with publisher.declare_matching_listener(on_status):
+        if _is_matching(publisher):
+            return True
+        log.info("event=replay_waiting key=%s reason=no_subscriber", publisher.key_expr)
+        deadline = None if timeout_s is None else clock() + timeout_s
+        while not stop.is_set():
+            wait = _WAIT_POLL_S if deadline is None else min(_WAIT_POLL_S, deadline - clock())
+            if wait <= 0:
+                return False
+            if matched.wait(wait):
+                return True
+        return False
+
+
+def _publish_all(
+    publisher: zenoh.Publisher,
+    source: FrameSource,
+    options: ReplayOptions,
+    *,
+    stop: threading.Event,
+    clock: Clock,
+    progress: ProgressBar | None,
+) -> int:
+    """Publish passes of ``source`` until done, stopped or at the limit; frames published."""
+    pacer = Pacer(options.pacing, options.rate_hz)
+    published = 0
+    while not stop.is_set():
+        sent_this_pass = 0
+        frames = source.frames(epoch_ns=time.time_ns(), seq_start=published)
+        with closing(frames):
+            for frame in frames:
+                if not _send(publisher, frame, pacer=pacer, stop=stop, clock=clock):
+                    return published
+                published += 1
+                sent_this_pass += 1
+                if progress is not None:
+                    progress.update(published, clock())
+                if options.limit and published >= options.limit:
+                    return published
+        if not options.loop or sent_this_pass == 0:
+            break
+    return published
+
+
+def _send(
+    publisher: zenoh.Publisher,
+    frame: SourceFrame,
+    *,
+    pacer: Pacer,
+    stop: threading.Event,
+    clock: Clock,
+) -> bool:
+    """Wait until ``frame`` is due, then put it; False when stopped first."""
+    delay = pacer.due(frame.stamp_ns, clock()) - clock()
+    if (delay > 0 and stop.wait(delay)) or stop.is_set():
+        return False
+    if frame.attachment is None:
+        publisher.put(frame.payload, encoding=_CDR_ENCODING)
+    else:
+        publisher.put(frame.payload, encoding=_RAW_ENCODING, attachment=frame.attachment)
+    return True
+
+
+def main(
+    conf: zenoh.Config,
+    source: FrameSource,
+    options: ReplayOptions,
+    stop: threading.Event,
+    *,
+    progress_stream: TextIO | None = None,
+    clock: Clock = time.monotonic,
+) -> int:
+    """Open a session with ``conf`` and publish ``source`` on ``options.key``; 0 when done or
+    stopped.
+
+    Raises:
+        ReplayError: no subscriber matched within ``options.subscriber_timeout_s``, or the source
+            failed while being read.
+
+    """
+    total = options.limit or None
+    if not options.loop and source.count is not None:
+        total = min(total, source.count) if total else source.count
+    with (
+        zenoh.open(conf) as session,
+        session.declare_publisher(
+            options.key, congestion_control=zenoh.CongestionControl.BLOCK
+        ) as publisher,
+    ):
+        if options.wait_for_subscriber and not _wait_for_subscriber(
+            publisher, timeout_s=options.subscriber_timeout_s, stop=stop, clock=clock
+        ):
+            if stop.is_set():
+                return 0
+            msg = (
+                f"no subscriber on {options.key!r} within "
+                f"{options.subscriber_timeout_s} s (is the service running and connected?)"
+            )
+            raise ReplayError(msg)
+        log.info(
+            "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d",
+            source.kind,
+            source.count if source.count is not None else "unknown",
+            options.key,
+            options.pacing,
+            options.loop,
+            options.limit,
+        )
+        start = clock()
+        stream = progress_stream if progress_stream is not None else sys.stderr
+        progress = ProgressBar(stream, total, start=start) if options.progress else None
+        published = _publish_all(
+            publisher, source, options, stop=stop, clock=clock, progress=progress
+        )
+        if progress is not None:
+            progress.finish(published, clock())
+        log.info(
+            "event=replay_done published=%d stopped=%s seconds=%.2f",
+            published,
+            stop.is_set(),
+            clock() - start,
+        )
+    return 0
+
+
+# -- command line ----------------------------------------------------------------------------
+
+
+def _stop_on_signals() -> threading.Event:
+    """An event set by SIGINT or SIGTERM (the replay then stops cleanly, exit 0)."""
+    stop = threading.Event()
+
+    def handle(signum: int, _frame: object) -> None:
+        log.info("event=signal signal=%s", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, handle)
+    signal.signal(signal.SIGTERM, handle)
+    return stop
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError as err:
+        msg = f"{text!r} is not a number"
+        raise argparse.ArgumentTypeError(msg) from err
+    if not math.isfinite(value) or value <= 0:
+        msg = f"{text!r} is not a positive number"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError as err:
+        msg = f"{text!r} is not an integer"
+        raise argparse.ArgumentTypeError(msg) from err
+    if value < 0:
+        msg = f"{text!r} is negative"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> ReplayOptions:
+    if args.as_fast_as_possible:
+        pacing = Pacing.ASAP
+    elif args.rate is not None:
+        pacing = Pacing.RATE
+    else:
+        pacing = Pacing.RECORDED
+    return ReplayOptions(
+        key=args.key,
+        pacing=pacing,
+        rate_hz=args.rate,
+        loop=args.loop,
+        limit=args.limit,
+        wait_for_subscriber=args.wait_for_subscriber,
+        subscriber_timeout_s=args.subscriber_timeout,
+        progress=stderr_is_tty if args.progress is None else args.progress,
+    )
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    source = open_source(
+        args.path,
+        topic=args.topic,
+        image_rate_hz=args.rate if args.rate is not None else DEFAULT_RATE_HZ,
+        frame_id=args.frame_id,
+    )
+    options = options_from_args(args, stderr_is_tty=sys.stderr.isatty())
+    return main(zenoh_config_from_args(args), source, options, _stop_on_signals())
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``replay`` subcommand to the CLI."""
+    parser = sub.add_parser(
+        "replay",
+        help="publish a rosbag2, a video or a folder of images as camera frames",
+        description=(
+            "Publish frames into Zenoh as a camera would. A rosbag2 (folder, .mcap or .db3) "
+            "sends the original sensor_msgs/Image CDR of one topic unchanged (as "
+            "zenoh-bridge-ros2dds does); a video or a folder of images (sorted by name) sends "
+            "raw BGRA with the msgpack attachment. Waits for a subscriber on the key first."
+        ),
+    )
+    parser.add_argument(
+        "path",
+        type=Path,
+        metavar="PATH",
+        help="rosbag2 folder, .mcap / .db3 file, video file, image folder or image file",
+    )
+    parser.add_argument(
+        "--key", default=DEFAULT_KEY, help=f"key to publish frames on (default: {DEFAULT_KEY})"
+    )
+    parser.add_argument(
+        "--topic",
+        default=None,
+        help="bag topic to replay (default: the only sensor_msgs/msg/Image topic, else "
+        "/zed/left/image)",
+    )
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=None,
+        metavar="HZ",
+        help="send at HZ frames per second (default: the recorded rate: bag times, video FPS; "
+        f"images {DEFAULT_RATE_HZ:g} Hz)",
+    )
+    pace.add_argument("--as-fast-as-possible", action="store_true", help="send without pacing")
+    parser.add_argument("--loop", action="store_true", help="start over at the end")
+    parser.add_argument(
+        "--limit",
+        type=_non_negative_int,
+        default=0,
+        metavar="N",
+        help="stop after N frames in total (default 0: no limit)",
+    )
+    parser.add_argument(
+        "--frame-id",
+        default=DEFAULT_FRAME_ID,
+        help=f"frame_id of video / image frames (default: {DEFAULT_FRAME_ID}; bags keep theirs)",
+    )
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only when stderr is a terminal)",
+    )
+    parser.add_argument(
+        "--wait-for-subscriber",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="wait until the key has a subscriber before sending (default: on)",
+    )
+    parser.add_argument(
+        "--subscriber-timeout",
+        type=_positive_float,
+        default=None,
+        metavar="S",
+        help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
+    )
+    add_zenoh_arguments(parser)
+    parser.set_defaults(handler=_cmd_replay)
