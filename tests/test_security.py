@@ -16,18 +16,29 @@ from __future__ import annotations
 import json
 import queue
 import secrets
-import socket
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import json5
+import numpy as np
 import pytest
 import zenoh
-from certs import ROGUE, STRANGER, Pki, make_pki
 
-_CONFIG_DIR = Path(__file__).resolve().parent.parent / "config" / "secure"
+from tests.certs import ROGUE, STRANGER, Pki, make_pki
+from tests.helpers import (
+    REPO,
+    Collector,
+    free_port,
+    running_cli,
+    wait_for_status,
+    wait_for_subscriber,
+)
+from zenoh_perception.frames import RawFrameMeta
+from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.scene import render_markers
+
+_CONFIG_DIR = REPO / "config" / "secure"
 _PROFILE_DIRS = {"mtls": _CONFIG_DIR, "usrpwd": _CONFIG_DIR / "usrpwd"}
 _CLIENT_ROLES = ("camera", "perception", "consumer")
 
@@ -41,13 +52,6 @@ _DELIVERY_TIMEOUT = 5.0
 """Upper bound for anything expected to arrive (loopback: it normally takes milliseconds)."""
 _ABSENCE_WINDOW = 1.0
 """Extra time given to a sample that must NOT arrive, after the positive control arrived."""
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
 
 
 def _rewrite_paths(node: Any, prefixes: dict[str, Path]) -> Any:
@@ -69,7 +73,7 @@ class _Deployment:
     def __init__(self, profile: str, pki: Pki, tmp_path: Path) -> None:
         self.profile = profile
         self.pki = pki
-        self.port = _free_port()
+        self.port = free_port()
         self._dir = _PROFILE_DIRS[profile]
         self._sessions: list[zenoh.Session] = []
         self.passwords = {role: secrets.token_urlsafe(16) for role in _CLIENT_ROLES}
@@ -105,37 +109,28 @@ class _Deployment:
 
     def close(self) -> None:
         for session in reversed(self._sessions):
-            session.close()  # type: ignore[no-untyped-call]  # (zenoh stub lacks -> None)
+            session.close()
         self._sessions.clear()
 
 
-class _Inbox:
-    """Payloads received by a subscriber, in arrival order."""
-
-    def __init__(self, session: zenoh.Session, key_expr: str) -> None:
-        self._queue: queue.Queue[tuple[str, bytes]] = queue.Queue()
-        self._subscriber = session.declare_subscriber(key_expr, self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        self._queue.put((str(sample.key_expr), sample.payload.to_bytes()))
-
-    def next(self, timeout: float = _DELIVERY_TIMEOUT) -> tuple[str, bytes]:
-        return self._queue.get(timeout=timeout)
-
-    def rest(self, window: float) -> list[tuple[str, bytes]]:
-        """Whatever else arrives until `window` seconds pass with nothing new."""
-        received: list[tuple[str, bytes]] = []
-        try:
-            while True:
-                received.append(self._queue.get(timeout=window))
-        except queue.Empty:
-            return received
+def _sample(inbox: Collector) -> tuple[str, bytes]:
+    """Key and payload of the next sample (queue.Empty after `_DELIVERY_TIMEOUT`)."""
+    received = inbox.get(timeout=_DELIVERY_TIMEOUT)
+    return received.key, received.payload
 
 
-def _late_arrivals(*inboxes: _Inbox) -> list[tuple[str, bytes]]:
+def _late_arrivals(*inboxes: Collector) -> list[tuple[str, bytes]]:
     """What the inboxes receive in the next `_ABSENCE_WINDOW` seconds (one shared wait)."""
     first, *others = inboxes
-    return first.rest(_ABSENCE_WINDOW) + [sample for inbox in others for sample in inbox.rest(0)]
+    late: list[tuple[str, bytes]] = []
+    try:
+        while True:  # until a whole window passes with nothing new
+            received = first.get(timeout=_ABSENCE_WINDOW)
+            late.append((received.key, received.payload))
+    except queue.Empty:
+        pass
+    late += [(r.key, r.payload) for inbox in others for r in inbox.drain()]
+    return late
 
 
 def _publisher_seeing_subscriber(session: zenoh.Session, key_expr: str) -> zenoh.Publisher:
@@ -145,20 +140,8 @@ def _publisher_seeing_subscriber(session: zenoh.Session, key_expr: str) -> zenoh
     the access control, not lost to declaration propagation.
     """
     publisher = session.declare_publisher(key_expr)
-    matched = threading.Event()
-    listener = publisher.declare_matching_listener(
-        lambda status: matched.set() if status.matching else None
-    )
-    try:
-        if not matched.wait(_DELIVERY_TIMEOUT):
-            pytest.fail(f"no subscriber on {key_expr} became visible to the publisher")
-    finally:
-        listener.undeclare()  # type: ignore[no-untyped-call]  # (zenoh stub lacks -> None)
+    wait_for_subscriber(publisher, timeout=_DELIVERY_TIMEOUT)
     return publisher
-
-
-def _undeclare(token: zenoh.LivelinessToken) -> None:
-    token.undeclare()  # type: ignore[no-untyped-call]  # (zenoh stub lacks -> None)
 
 
 def _round_trip(session: zenoh.Session) -> None:
@@ -212,18 +195,18 @@ def usrpwd(pki: Pki, tmp_path: Path) -> Iterator[_Deployment]:
 
 
 def test_camera_frames_reach_perception(secured: _Deployment) -> None:
-    frames = _Inbox(secured.client("perception"), _FRAMES)
+    frames = Collector(secured.client("perception"), _FRAMES)
     camera = _publisher_seeing_subscriber(secured.client("camera"), _FRAMES)
 
     camera.put(b"frame-1")
 
-    assert frames.next() == (_FRAMES, b"frame-1")
+    assert _sample(frames) == (_FRAMES, b"frame-1")
 
 
 def test_perception_outputs_reach_consumer(secured: _Deployment) -> None:
     consumer = secured.client("consumer")
-    tags = _Inbox(consumer, _TAG)
-    records = _Inbox(consumer, "perception/**")
+    tags = Collector(consumer, _TAG)
+    records = Collector(consumer, "perception/**")
     perception = secured.client("perception")
     tag = _publisher_seeing_subscriber(perception, _TAG)
     record = _publisher_seeing_subscriber(perception, _TAGS_RECORD)
@@ -231,8 +214,8 @@ def test_perception_outputs_reach_consumer(secured: _Deployment) -> None:
     tag.put(b"tag-1")
     record.put(b"record-1")
 
-    assert tags.next() == (_TAG, b"tag-1")
-    assert records.next() == (_TAGS_RECORD, b"record-1")
+    assert _sample(tags) == (_TAG, b"tag-1")
+    assert _sample(records) == (_TAGS_RECORD, b"record-1")
 
 
 def test_consumer_reads_perception_status_and_liveliness(secured: _Deployment) -> None:
@@ -244,17 +227,17 @@ def test_consumer_reads_perception_status_and_liveliness(secured: _Deployment) -
 
     assert _status_replies(consumer) == [b"ok"]
     assert _alive_tokens(consumer) == [f"{_ALIVE}/service"]
-    _undeclare(token)
+    token.undeclare()
 
 
 # Authenticated roles cannot publish outside their keys.
 
 
 def test_roles_cannot_publish_outside_their_keys(secured: _Deployment) -> None:
-    frames = _Inbox(secured.client("perception"), _FRAMES)
+    frames = Collector(secured.client("perception"), _FRAMES)
     navigation = secured.client("consumer")
-    tags = _Inbox(navigation, _TAG)
-    records = _Inbox(navigation, "perception/**")
+    tags = Collector(navigation, _TAG)
+    records = Collector(navigation, "perception/**")
     intruder = secured.client("consumer")  # authenticated, but only allowed to read
     camera = secured.client("camera")
     perception = secured.client("perception")
@@ -273,7 +256,7 @@ def test_roles_cannot_publish_outside_their_keys(secured: _Deployment) -> None:
     _publisher_seeing_subscriber(camera, _FRAMES).put(b"frame")
     _publisher_seeing_subscriber(perception, _TAG).put(b"tag")
     _publisher_seeing_subscriber(perception, _TAGS_RECORD).put(b"record")
-    first = [frames.next(), tags.next(), records.next()]
+    first = [_sample(frames), _sample(tags), _sample(records)]
 
     assert first == [(_FRAMES, b"frame"), (_TAG, b"tag"), (_TAGS_RECORD, b"record")]
     assert _late_arrivals(frames, tags, records) == []
@@ -294,8 +277,8 @@ def test_consumer_cannot_impersonate_perception_status_or_liveliness(
 
     assert _status_replies(navigation) == [b"ok"]
     assert _alive_tokens(navigation) == [f"{_ALIVE}/service"]
-    _undeclare(token)
-    _undeclare(fake_token)
+    token.undeclare()
+    fake_token.undeclare()
 
 
 # Sessions without valid credentials never get a link (mutual TLS profile).
@@ -306,13 +289,13 @@ def test_certificate_from_another_ca_is_refused(mtls: _Deployment) -> None:
     tls = rogue["transport"]["link"]["tls"]
     tls["connect_certificate"] = str(mtls.pki[ROGUE].cert)
     tls["connect_private_key"] = str(mtls.pki[ROGUE].key)
-    frames = _Inbox(mtls.client("perception"), _FRAMES)
+    frames = Collector(mtls.client("perception"), _FRAMES)
 
     with pytest.raises(zenoh.ZError):
         mtls.open(rogue)
 
     _publisher_seeing_subscriber(mtls.client("camera"), _FRAMES).put(b"frame")
-    assert frames.next() == (_FRAMES, b"frame")
+    assert _sample(frames) == (_FRAMES, b"frame")
 
 
 def test_client_without_certificate_is_refused(mtls: _Deployment) -> None:
@@ -320,18 +303,18 @@ def test_client_without_certificate_is_refused(mtls: _Deployment) -> None:
     tls = anonymous["transport"]["link"]["tls"]
     del tls["connect_certificate"], tls["connect_private_key"]
     tls["enable_mtls"] = False  # plain TLS: verifies the router, presents no certificate
-    frames = _Inbox(mtls.client("perception"), _FRAMES)
+    frames = Collector(mtls.client("perception"), _FRAMES)
 
     with pytest.raises(zenoh.ZError):
         mtls.open(anonymous)
 
     _publisher_seeing_subscriber(mtls.client("camera"), _FRAMES).put(b"frame")
-    assert frames.next() == (_FRAMES, b"frame")
+    assert _sample(frames) == (_FRAMES, b"frame")
 
 
 def test_camera_refuses_an_impostor_router(mtls: _Deployment) -> None:
     impostor = mtls.config("router")
-    impostor["listen"]["endpoints"] = [f"tls/127.0.0.1:{_free_port()}"]
+    impostor["listen"]["endpoints"] = [f"tls/127.0.0.1:{free_port()}"]
     tls = impostor["transport"]["link"]["tls"]
     tls["listen_certificate"] = str(mtls.pki[ROGUE].cert)
     tls["listen_private_key"] = str(mtls.pki[ROGUE].key)
@@ -354,9 +337,9 @@ def test_valid_certificate_with_unlisted_name_can_neither_publish_nor_read(
     tls["connect_certificate"] = str(mtls.pki[STRANGER].cert)
     tls["connect_private_key"] = str(mtls.pki[STRANGER].key)
     stranger = mtls.open(stranger_config)  # the CA vouches for it: the link comes up
-    stranger_tags = _Inbox(stranger, _TAG)
-    frames = _Inbox(mtls.client("perception"), _FRAMES)
-    tags = _Inbox(mtls.client("consumer"), _TAG)
+    stranger_tags = Collector(stranger, _TAG)
+    frames = Collector(mtls.client("perception"), _FRAMES)
+    tags = Collector(mtls.client("consumer"), _TAG)
     camera = _publisher_seeing_subscriber(mtls.client("camera"), _FRAMES)
     tag = _publisher_seeing_subscriber(mtls.client("perception"), _TAG)
 
@@ -364,7 +347,7 @@ def test_valid_certificate_with_unlisted_name_can_neither_publish_nor_read(
     camera.put(b"frame")
     tag.put(b"tag")
 
-    assert [frames.next(), tags.next()] == [(_FRAMES, b"frame"), (_TAG, b"tag")]
+    assert [_sample(frames), _sample(tags)] == [(_FRAMES, b"frame"), (_TAG, b"tag")]
     assert _late_arrivals(frames, stranger_tags) == []
 
 
@@ -382,10 +365,55 @@ def test_bad_login_is_refused(usrpwd: _Deployment, user: str | None, password: s
         del config["transport"]["auth"]
     else:
         config["transport"]["auth"]["usrpwd"] = {"user": user, "password": password}
-    frames = _Inbox(usrpwd.client("perception"), _FRAMES)
+    frames = Collector(usrpwd.client("perception"), _FRAMES)
 
     with pytest.raises(zenoh.ZError):
         usrpwd.open(config)
 
     _publisher_seeing_subscriber(usrpwd.client("camera"), _FRAMES).put(b"frame")
-    assert frames.next() == (_FRAMES, b"frame")
+    assert _sample(frames) == (_FRAMES, b"frame")
+
+
+# The real service behind the secured router.
+
+
+def test_real_service_with_the_shipped_perception_config(mtls: _Deployment) -> None:
+    """`zenoh-perception run -c config/secure/perception.json5` talks only through the router.
+
+    The shipped config is used as is; only the router endpoint (-e) and the certificate paths
+    (--cfg) are overridden on the command line, as an operator would.
+    """
+    role = mtls.pki["perception"]
+    tls = "transport/link/tls"
+    overrides = {
+        f"{tls}/root_ca_certificate": mtls.pki.ca,
+        f"{tls}/connect_certificate": role.cert,
+        f"{tls}/connect_private_key": role.key,
+    }
+    cfg_args = [
+        arg
+        for key, path in overrides.items()
+        for arg in ("--cfg", f"{key}:{json.dumps(str(path))}")
+    ]
+    consumer = mtls.client("consumer")
+    tags = Collector(consumer, _TAG)
+    records = Collector(consumer, _TAGS_RECORD)
+    side = 160.0
+    corners = np.array([[200, 120], [200 + side, 120], [200 + side, 120 + side], [200, 120 + side]])
+    image = render_markers(640, 480, [(7, corners)])
+
+    with running_cli(
+        "run", "-c", str(_CONFIG_DIR / "perception.json5"),
+        "-e", f"tls/127.0.0.1:{mtls.port}", *cfg_args,
+    ) as service:  # fmt: skip
+        status = wait_for_status(consumer)  # the status queryable answers through the router
+        tokens = _alive_tokens(consumer)
+        camera = _publisher_seeing_subscriber(mtls.client("camera"), _FRAMES)
+        camera.put(image.tobytes(), attachment=RawFrameMeta(640, 480, seq=1).to_msgpack())
+        tag = TagCodec().decode(tags.get(timeout=30).payload)
+        record = decode_record(records.get(timeout=_DELIVERY_TIMEOUT).payload)
+        assert service.poll() is None
+
+    assert tokens == [f"{_ALIVE}/{status['zid']}"]
+    assert tag.tag_id == 7
+    assert record["selected"]["tag_id"] == 7
