@@ -438,14 +438,17 @@ def test_fixed_rate_pacing_needs_a_rate() -> None:
 
 
 def test_render_progress() -> None:
-    assert render_progress(5, 10, 2.0, width=10) == "replay [#####.....]  50% 5/10 frames 2.5 fps"
-    assert render_progress(10, 10, 1.0, width=4) == "replay [####] 100% 10/10 frames 10.0 fps"
-    assert render_progress(7, None, 0.0) == "replay 7 frames 0.0 fps"
+    # Rate: frames after the first over the time since the first.
+    assert render_progress(5, 10, 2.0, width=10) == "replay [#####.....]  50% 5/10 frames 2.0 fps"
+    assert render_progress(10, 10, 1.5, width=4) == "replay [####] 100% 10/10 frames 6.0 fps"
+    assert render_progress(7, None, 0.5) == "replay 7 frames 12.0 fps"
+    assert render_progress(1, None, 0.0) == "replay 1 frames 0.0 fps"
+    assert render_progress(3, 7, 1.0, width=7) == "replay [###....]  42% 3/7 frames 2.0 fps"
 
 
 def test_progress_bar_redraws_in_place_and_throttles() -> None:
     stream = io.StringIO()
-    bar = ProgressBar(stream, 4, start=0.0, min_interval_s=1.0)
+    bar = ProgressBar(stream, 4, min_interval_s=1.0)
     bar.update(1, 0.5)
     bar.update(2, 0.7)  # within the interval: not drawn
     bar.update(3, 1.6)

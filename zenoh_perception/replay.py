@@ -119,8 +119,9 @@ class Pacer:
 
 
 def render_progress(done: int, total: int | None, elapsed_s: float, *, width: int = 30) -> str:
-    """One progress line: a bar when ``total`` is known, the count and the mean frame rate."""
-    fps = done / elapsed_s if elapsed_s > 0 else 0.0
+    """One progress line: a bar when ``total`` is known, the count and the mean frame rate
+    (``elapsed_s`` is the time since the first frame was sent)."""
+    fps = (done - 1) / elapsed_s if done > 1 and elapsed_s > 0 else 0.0
     if total:
         filled = min(width, done * width // total)
         bar = "#" * filled + "." * (width - filled)
@@ -131,14 +132,13 @@ def render_progress(done: int, total: int | None, elapsed_s: float, *, width: in
 
 class ProgressBar:
     """Redraws :func:`render_progress` in place (carriage return) at most every
-    ``min_interval_s``; :meth:`finish` draws the final state and ends the line."""
+    ``min_interval_s``; :meth:`finish` draws the final state and ends the line. The clock
+    starts at the first :meth:`update` (the first frame sent)."""
 
-    def __init__(
-        self, stream: TextIO, total: int | None, *, start: float, min_interval_s: float = 0.2
-    ) -> None:
+    def __init__(self, stream: TextIO, total: int | None, *, min_interval_s: float = 0.2) -> None:
         self._stream = stream
         self._total = total
-        self._start = start
+        self._start: float | None = None
         self._min_interval_s = min_interval_s
         self._last_draw: float | None = None
         self._width = 0
@@ -154,6 +154,8 @@ class ProgressBar:
         self._stream.flush()
 
     def _draw(self, done: int, now: float) -> None:
+        if self._start is None:
+            self._start = now
         self._last_draw = now
         line = render_progress(done, self._total, now - self._start)
         # Pad with spaces so a shorter line fully covers the previous one.
@@ -309,7 +311,7 @@ def main(
         )
         start = clock()
         stream = progress_stream if progress_stream is not None else sys.stderr
-        progress = ProgressBar(stream, total, start=start) if options.progress else None
+        progress = ProgressBar(stream, total) if options.progress else None
         published = _publish_all(
             publisher, source, options, stop=stop, clock=clock, progress=progress
         )
