@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE
+from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE, header
 from zenoh_perception.selection import TagMessage, TagObservation
 
 _OTHER = (0, 200, 255)  # BGR amber
@@ -68,14 +68,8 @@ def encode_compressed_image(
     if not ok:  # pragma: no cover - imencode only fails on invalid images
         msg = "JPEG encoding failed"
         raise ValueError(msg)
-    types = TYPESTORE.types
-    message = types[COMPRESSED_IMAGE_TYPE](
-        header=types["std_msgs/msg/Header"](
-            stamp=types["builtin_interfaces/msg/Time"](
-                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-            ),
-            frame_id=frame_id,
-        ),
+    message = TYPESTORE.types[COMPRESSED_IMAGE_TYPE](
+        header=header(stamp_ns, frame_id),
         format="jpeg",
         data=np.asarray(jpeg, dtype=np.uint8).reshape(-1),
     )

@@ -8,7 +8,6 @@ any view is built, so a hostile header can never make us allocate or read past t
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Final, cast
@@ -17,7 +16,6 @@ import cv2
 import msgpack
 import numpy as np
 import numpy.typing as npt
-from rosbags.serde import SerdeError
 
 from zenoh_perception.errors import (
     AttachmentError,
@@ -26,7 +24,14 @@ from zenoh_perception.errors import (
     SizeMismatchError,
     UnsupportedEncodingError,
 )
-from zenoh_perception.messages import IMAGE_TYPE, TYPESTORE
+from zenoh_perception.messages import (
+    IMAGE_TYPE,
+    TYPESTORE,
+    deserialize,
+    header,
+    stamp_ns_of,
+    unpack_msgpack_map,
+)
 
 Pixels = npt.NDArray[np.uint8]
 
@@ -137,16 +142,7 @@ def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
     if len(data) > MAX_ATTACHMENT_BYTES:
         msg = f"attachment of {len(data)} bytes exceeds {MAX_ATTACHMENT_BYTES}"
         raise AttachmentError(msg)
-    try:
-        # msgpack bounds every container and string by the input length, so this cannot
-        # allocate more than the attachment holds.
-        fields = msgpack.unpackb(data, raw=False, strict_map_key=False)
-    except (ValueError, msgpack.UnpackException, TypeError) as err:
-        msg = f"attachment is not msgpack: {err}"
-        raise AttachmentError(msg) from err
-    if not isinstance(fields, dict):
-        msg = f"attachment is a msgpack {type(fields).__name__}, not a map"
-        raise AttachmentError(msg)
+    fields = unpack_msgpack_map(data, AttachmentError, "attachment")
     encoding = fields.get("encoding", DEFAULT_ENCODING)
     if not isinstance(encoding, str):
         msg = "attachment 'encoding' is not a string"
@@ -242,21 +238,15 @@ def decode_image_cdr(payload: bytes | memoryview) -> Frame:
         FrameDecodeError: a subclass naming what is wrong.
 
     """
-    view = payload if isinstance(payload, memoryview) else memoryview(payload)
-    try:
-        msg: Any = TYPESTORE.deserialize_cdr(view, IMAGE_TYPE)
-    except (SerdeError, struct.error, ValueError, IndexError, UnicodeDecodeError) as err:
-        text = f"not a sensor_msgs/Image CDR sample: {err}"
-        raise ImageCdrError(text) from err
+    msg = deserialize(payload, IMAGE_TYPE, ImageCdrError)
     encoding = _lookup_encoding(str(msg.encoding))
     data: Pixels = msg.data
     if data.ndim != 1 or data.dtype != np.uint8:  # pragma: no cover - rosbags always gives uint8[]
         text = "Image.data is not a uint8 sequence"
         raise ImageCdrError(text)
     pixels = pixel_view(data, int(msg.width), int(msg.height), int(msg.step), encoding)
-    stamp = msg.header.stamp
-    stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-    return Frame(pixels, encoding, stamp_ns, str(msg.header.frame_id)[:MAX_FRAME_ID_CHARS], None)
+    frame_id = str(msg.header.frame_id)[:MAX_FRAME_ID_CHARS]
+    return Frame(pixels, encoding, stamp_ns_of(msg.header), frame_id, None)
 
 
 def encode_image_cdr(
@@ -280,14 +270,8 @@ def encode_image_cdr(
         padded = np.zeros((height, step), dtype=np.uint8)
         padded[:, :row_bytes] = rows
         data = padded.reshape(-1)
-    types = TYPESTORE.types
-    image = types[IMAGE_TYPE](
-        header=types["std_msgs/msg/Header"](
-            stamp=types["builtin_interfaces/msg/Time"](
-                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-            ),
-            frame_id=frame_id,
-        ),
+    image = TYPESTORE.types[IMAGE_TYPE](
+        header=header(stamp_ns, frame_id),
         height=height,
         width=width,
         encoding=enc.name,

@@ -6,10 +6,15 @@
 
 from __future__ import annotations
 
-from typing import Final
+import struct
+from typing import Any, Final
 
+import msgpack
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+
+from zenoh_perception.errors import PerceptionError
 
 #: The .msg definition of the tag message; field order is the wire order.
 STARTER_PROJECT_TAG_MSG: Final = """\
@@ -40,3 +45,58 @@ def make_typestore(package: str = DEFAULT_ROS_PACKAGE) -> Typestore:
 #: Shared typestore for the standard types (Image, CompressedImage, CameraInfo) and the tag
 #: in the default package. The CDR bytes of the tag do not depend on the package name.
 TYPESTORE: Final = make_typestore()
+
+
+def header(stamp_ns: int, frame_id: str) -> Any:
+    """A std_msgs/Header for ``stamp_ns`` (nanoseconds since the epoch) and ``frame_id``."""
+    types = TYPESTORE.types
+    return types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](
+            sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
+        ),
+        frame_id=frame_id,
+    )
+
+
+def stamp_ns_of(msg_header: Any) -> int:
+    """Nanoseconds since the epoch of a deserialised std_msgs/Header."""
+    return int(msg_header.stamp.sec) * 1_000_000_000 + int(msg_header.stamp.nanosec)
+
+
+def deserialize(
+    payload: bytes | memoryview,
+    typename: str,
+    error: type[PerceptionError],
+    store: Typestore = TYPESTORE,
+) -> Any:
+    """Deserialise one CDR sample (4-byte header included) of ``typename``.
+
+    A memoryview (or bytes) payload gives zero-copy numpy views for primitive arrays. Every
+    failure, including a sample longer than the message (rosbags checks that the decoder
+    consumed the payload up to CDR's final alignment), is raised as ``error``.
+    """
+    view = payload if isinstance(payload, memoryview) else memoryview(payload)
+    try:
+        return store.deserialize_cdr(view, typename)
+    except (SerdeError, struct.error, ValueError, IndexError, UnicodeDecodeError) as err:
+        text = f"not a {typename} CDR sample: {err}"
+        raise error(text) from err
+
+
+def unpack_msgpack_map(
+    data: bytes | memoryview, error: type[PerceptionError], what: str
+) -> dict[Any, Any]:
+    """Parse msgpack that must be a map; anything else is raised as ``error``.
+
+    msgpack bounds every container and string by the input length, so this never allocates
+    more than ``data`` holds.
+    """
+    try:
+        value = msgpack.unpackb(data, raw=False, strict_map_key=False)
+    except (ValueError, msgpack.UnpackException, TypeError) as err:
+        text = f"{what} is not msgpack: {err}"
+        raise error(text) from err
+    if not isinstance(value, dict):
+        text = f"{what} is a msgpack {type(value).__name__}, not a map"
+        raise error(text)
+    return value

@@ -6,17 +6,14 @@ distortion is ignored. The pose is OpenCV's IPPE_SQUARE solution of the four cor
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
-from rosbags.serde import SerdeError
 
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.messages import CAMERA_INFO_TYPE, TYPESTORE
+from zenoh_perception.messages import CAMERA_INFO_TYPE, deserialize
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,12 +81,7 @@ def decode_camera_info(payload: bytes | memoryview) -> Intrinsics:
         MessageDecodeError: not a CameraInfo sample, or a K matrix without focal lengths.
 
     """
-    view = payload if isinstance(payload, memoryview) else memoryview(payload)
-    try:
-        msg: Any = TYPESTORE.deserialize_cdr(view, CAMERA_INFO_TYPE)
-    except (SerdeError, struct.error, ValueError, IndexError, UnicodeDecodeError) as err:
-        text = f"not a sensor_msgs/CameraInfo CDR sample: {err}"
-        raise MessageDecodeError(text) from err
+    msg = deserialize(payload, CAMERA_INFO_TYPE, MessageDecodeError)
     k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
     if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
         text = "CameraInfo K has no positive focal lengths"

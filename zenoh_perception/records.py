@@ -10,17 +10,21 @@ rounded to float32 so that they equal the ``tag`` message of the same frame exac
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
 import msgpack
 import numpy as np
-from rosbags.serde import SerdeError
 
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.messages import DEFAULT_ROS_PACKAGE, make_typestore, tag_type_name
+from zenoh_perception.messages import (
+    DEFAULT_ROS_PACKAGE,
+    deserialize,
+    make_typestore,
+    tag_type_name,
+    unpack_msgpack_map,
+)
 from zenoh_perception.selection import TagMessage, TagObservation
 
 TAG_CDR_SIZE: Final = 20
@@ -57,11 +61,7 @@ class TagCodec:
 
     def decode(self, payload: bytes | memoryview) -> TagMessage:
         """Raises MessageDecodeError for anything but one well-formed tag message."""
-        try:
-            msg: Any = self._store.deserialize_cdr(payload, self.type_name)
-        except (SerdeError, struct.error, ValueError, IndexError) as err:
-            text = f"not a {self.type_name} CDR sample: {err}"
-            raise MessageDecodeError(text) from err
+        msg = deserialize(payload, self.type_name, MessageDecodeError, self._store)
         return TagMessage(
             int(msg.tag_id),
             float(msg.x_tag_center_pixel),
@@ -138,14 +138,7 @@ def decode_record(payload: bytes | memoryview) -> dict[str, Any]:
         MessageDecodeError: not msgpack, not a map, or required keys missing.
 
     """
-    try:
-        record = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-    except (ValueError, msgpack.UnpackException, TypeError) as err:
-        text = f"record is not msgpack: {err}"
-        raise MessageDecodeError(text) from err
-    if not isinstance(record, dict):
-        text = "record is not a map"
-        raise MessageDecodeError(text)
+    record = unpack_msgpack_map(payload, MessageDecodeError, "record")
     missing = [key for key in _RECORD_KEYS if key not in record]
     selected = record.get("selected")
     if not missing and isinstance(selected, dict):
