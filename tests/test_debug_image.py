@@ -101,13 +101,13 @@ def rig(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[_Rig]:
 
 
 def _wait_watched(session: zenoh.Session, watched: bool, timeout: float = 10.0) -> None:
-    """Until the service's status reports ``debug_image_watched == watched``."""
+    """Until the service's status reports ``debug_image.watched == watched``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         status = query_status(session)
-        if status is not None and status["debug_image_watched"] is watched:
+        if status is not None and status["debug_image"]["watched"] is watched:
             return
-    pytest.fail(f"debug_image_watched never became {watched}")
+    pytest.fail(f"debug_image.watched never became {watched}")
 
 
 def _edge_midpoints(corners: list[list[float]]) -> list[tuple[int, int]]:
@@ -169,6 +169,8 @@ def test_debug_image_only_while_watched(rig: _Rig) -> None:
     for _ in range(3):
         rig.send_and_wait()
     assert (rig.spy.annotate, rig.spy.encode) == (1, 1)
+    status = query_status(rig.camera)
+    assert status is not None and status["debug_image"] == {"watched": False, "published": 1}
 
 
 def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -194,6 +196,6 @@ def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.Mon
         assert decode_record(records.get().payload)["seq"] == 1
         status = query_status(camera)
         assert status is not None
-        assert status["debug_image_watched"] is False
+        assert status["debug_image"] == {"watched": False, "published": 0}
         assert viewer.drain() == []
     assert encoded == []

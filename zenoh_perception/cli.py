@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 from collections.abc import Callable, Sequence
 
 import zenoh
@@ -14,6 +12,7 @@ import zenoh
 from zenoh_perception import __version__, demo, echo, replay, service, status
 from zenoh_perception.errors import PerceptionError, SettingsError
 from zenoh_perception.settings import add_settings_arguments, settings_from_args
+from zenoh_perception.signals import stop_on_signals
 from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
 
 LOG_FORMAT = "ts=%(asctime)s level=%(levelname)s logger=%(name)s %(message)s"
@@ -21,25 +20,10 @@ LOG_FORMAT = "ts=%(asctime)s level=%(levelname)s logger=%(name)s %(message)s"
 Handler = Callable[[argparse.Namespace], int]
 
 
-def _stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (the process then shuts down cleanly, exit 0)."""
-    stop = threading.Event()
-
-    def handle(signum: int, _frame: object) -> None:
-        logging.getLogger("zenoh_perception").info(
-            "event=signal signal=%s", signal.Signals(signum).name
-        )
-        stop.set()
-
-    signal.signal(signal.SIGINT, handle)
-    signal.signal(signal.SIGTERM, handle)
-    return stop
-
-
 def _cmd_run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     conf = zenoh_config_from_args(args)
-    service.run(conf, settings, _stop_on_signals())
+    service.run(conf, settings, stop_on_signals())
     return 0
 
 
@@ -53,7 +37,7 @@ def _cmd_echo(args: argparse.Namespace) -> int:
         as_json=args.json,
         count=args.count,
         timeout=args.timeout,
-        stop=_stop_on_signals(),
+        stop=stop_on_signals(),
     )
 
 
@@ -73,7 +57,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         cdr=args.format == "cdr",
         camera_only=args.camera_only,
         limit=args.limit,
-        stop=_stop_on_signals(),
+        stop=stop_on_signals(),
     )
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -27,6 +26,7 @@ from typing import Final, TextIO
 
 import zenoh
 
+from zenoh_perception.signals import stop_on_signals
 from zenoh_perception.sources import (
     DEFAULT_FRAME_ID,
     DEFAULT_RATE_HZ,
@@ -329,19 +329,6 @@ def main(
 # -- command line ----------------------------------------------------------------------------
 
 
-def _stop_on_signals() -> threading.Event:
-    """An event set by SIGINT or SIGTERM (the replay then stops cleanly, exit 0)."""
-    stop = threading.Event()
-
-    def handle(signum: int, _frame: object) -> None:
-        log.info("event=signal signal=%s", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGINT, handle)
-    signal.signal(signal.SIGTERM, handle)
-    return stop
-
-
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -393,7 +380,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         frame_id=args.frame_id,
     )
     options = options_from_args(args, stderr_is_tty=sys.stderr.isatty())
-    return main(zenoh_config_from_args(args), source, options, _stop_on_signals())
+    return main(zenoh_config_from_args(args), source, options, stop_on_signals())
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

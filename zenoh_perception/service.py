@@ -61,6 +61,7 @@ class PerceptionService:
         self._stop = threading.Event()
         self._debug_watched = threading.Event()
         self._last_debug = 0.0
+        self._debug_images = 0
         self._seq = 0
         self._declared: list[Any] = []
         self._threads: list[threading.Thread] = []
@@ -238,6 +239,7 @@ class PerceptionService:
                 )
             )
         )
+        self._debug_images += 1
 
     def _reject(self, reason: str, err: Exception) -> None:
         self.stats.on_rejected(reason)
@@ -257,7 +259,10 @@ class PerceptionService:
             "version": __version__,
             "zid": str(self._session.zid()),
             **snapshot,
-            "debug_image_watched": self._debug_watched.is_set(),
+            "debug_image": {
+                "watched": self._debug_watched.is_set(),
+                "published": self._debug_images,
+            },
             "settings": self.settings.as_dict(),
         }
 
