@@ -36,12 +36,16 @@ demo: venv
 echo: venv
 	$(BIN)/zenoh-perception echo $(ARGS)
 
-# Debian's docker-compose validates docker-compose.yml (no Docker engine runs here).
+# System tools the tests use: Debian's docker-compose validates docker-compose.yml (no Docker
+# engine runs here) and openssl makes the certificates of the TLS tests. Installed when missing.
+SYSTEM_TOOLS := docker-compose openssl
 tools:
-	@command -v docker-compose >/dev/null 2>&1 || { \
-		echo "installing Debian's docker-compose to validate docker-compose.yml"; \
+	@missing=""; for t in $(SYSTEM_TOOLS); do command -v $$t >/dev/null 2>&1 || missing="$$missing $$t"; done; \
+	if [ -n "$$missing" ]; then \
+		echo "installing Debian packages:$$missing"; \
 		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq docker-compose >/dev/null; }
+		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing >/dev/null; \
+	fi
 
 lint: venv
 	$(BIN)/ruff check zenoh_perception tests
