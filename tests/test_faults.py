@@ -1,0 +1,215 @@
+"""Faults around the service, with in-process Zenoh routers (zenoh-python in ``mode: router``).
+
+- The real CLI in client mode survives its router being closed and reopened on the same port
+  and resumes by itself (Zenoh 1.x clients reconnect with the default ``connect/retry``
+  back-off, 1 s doubling to 4 s; nothing to configure).
+- A camera that disappears (session closed, even in the middle of a burst) and comes back as a
+  new session is answered again.
+- SIGTERM while the worker is busy with an HD2K frame stream exits 0 within 2 s.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zenoh
+
+from tests.helpers import (
+    Collector,
+    loopback_endpoint,
+    open_session,
+    query_status,
+    running_cli,
+    wait_for_status,
+    wait_for_subscriber,
+    wait_until,
+    zenoh_config,
+)
+from zenoh_perception.bench.flood import RESOLUTIONS, MarkerFrame, marker_frame, raw_attachment
+from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.service import PerceptionService
+from zenoh_perception.settings import Settings
+
+FRAMES = "zed/left/image"
+_RECONNECT_TIMEOUT = 30.0  # the client retries every 1 s, then 2 s, then 4 s
+
+
+class Router:
+    """An in-process Zenoh router on one loopback port, which a test can restart."""
+
+    def __init__(self, endpoint: str) -> None:
+        self.endpoint = endpoint
+        self.session: zenoh.Session | None = zenoh.open(
+            zenoh_config(mode="router", listen=[endpoint])
+        )
+
+    def stop(self) -> None:
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    def start(self) -> zenoh.Session:
+        self.stop()
+        self.session = zenoh.open(zenoh_config(mode="router", listen=[self.endpoint]))
+        return self.session
+
+
+@pytest.fixture
+def router() -> Iterator[Router]:
+    router = Router(loopback_endpoint())
+    try:
+        yield router
+    finally:
+        router.stop()
+
+
+def _frame(tag_id: int) -> MarkerFrame:
+    return marker_frame(320, 240, tag_id, side=96, origin=(60, 50))
+
+
+def _answered(session: zenoh.Session, tag_id: int, seq: int) -> dict[str, object]:
+    """Publish one frame through ``session``; return the service's record for it."""
+    frame = _frame(tag_id)
+    records = Collector(session, "perception/tags")
+    tags = Collector(session, "tag")
+    publisher = session.declare_publisher(FRAMES)
+    try:
+        wait_for_subscriber(publisher, timeout=_RECONNECT_TIMEOUT)
+        publisher.put(frame.payload, attachment=raw_attachment(320, 240, seq=seq))
+        while True:
+            record = decode_record(records.get(timeout=10.0).payload)
+            if record["seq"] == seq:
+                break
+        assert TagCodec().decode(tags.get(timeout=10.0).payload).tag_id == tag_id
+        return record
+    finally:
+        publisher.undeclare()
+        records.undeclare()
+        tags.undeclare()
+
+
+def test_client_mode_service_resumes_after_its_router_restarts(router: Router) -> None:
+    args = ("run", "-m", "client", "-e", router.endpoint, "--no-multicast-scouting")
+    with running_cli(*args, "--stats-interval-s", "0") as proc:
+        assert router.session is not None
+        wait_for_status(router.session)
+        assert _answered(router.session, 4, seq=1)["selected"] == {
+            "tag_id": 4,
+            "x_tag_center_pixel": 107.5,
+            "y_tag_center_pixel": 97.5,
+            "closeness_metric": pytest.approx(1 - (96 * 96 / (320 * 240)) ** 0.5, abs=0.01),
+        }
+        for restart in range(2):
+            router.stop()
+            session = router.start()
+            # The same service (same Zenoh id) comes back on its own: status, then frames.
+            status = wait_for_status(session, timeout=_RECONNECT_TIMEOUT)
+            assert status["frames"]["processed"] == 1 + restart
+            record = _answered(session, 5 + restart, seq=2 + restart)
+            assert record["selected"]["tag_id"] == 5 + restart  # type: ignore[index]
+        assert proc.poll() is None
+
+
+def test_camera_leaving_and_coming_back_is_answered_again(router: Router) -> None:
+    assert router.session is not None
+    observer = router.session
+    with (
+        open_session(mode="client", connect=[router.endpoint]) as service_session,
+        PerceptionService(service_session, Settings(stats_interval_s=0.0)) as service,
+    ):
+        records = Collector(observer, "perception/tags")
+        # First camera: a burst, then it vanishes in the middle of it (session closed).
+        frame = _frame(6)
+        with open_session(mode="client", connect=[router.endpoint]) as camera:
+            publisher = camera.declare_publisher(FRAMES)
+            wait_for_subscriber(publisher)
+            for seq in range(30):
+                publisher.put(frame.payload, attachment=raw_attachment(320, 240, seq=seq))
+            first = decode_record(records.get(timeout=10.0).payload)
+        assert first["selected"]["tag_id"] == 6
+        # A new camera session (new Zenoh id) is answered like the first.
+        with open_session(mode="client", connect=[router.endpoint]) as camera:
+            record = _answered(camera, 8, seq=100)
+        assert record["selected"]["tag_id"] == 8  # type: ignore[index]
+        status = service.status()
+        frames = status["frames"]
+        assert frames["processed"] >= 2
+        assert frames["received"] == frames["processed"] + frames["dropped"] + frames["rejected"]
+
+
+class _Stream:
+    """Publishes one frame over and over from a thread until stopped (Zenoh drops if full)."""
+
+    def __init__(self, session: zenoh.Session, frame: MarkerFrame) -> None:
+        self._publisher = session.declare_publisher(
+            FRAMES, congestion_control=zenoh.CongestionControl.DROP
+        )
+        self._frame = frame
+        self._stop = threading.Event()
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def start(self) -> None:
+        wait_for_subscriber(self._publisher)
+        self._thread.start()
+
+    def _run(self) -> None:
+        frame = self._frame
+        while not self._stop.is_set():
+            attachment = raw_attachment(frame.width, frame.height, seq=self.sent)
+            self._publisher.put(frame.payload, attachment=attachment)
+            self.sent += 1
+            self._stop.wait(0.005)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10.0)
+        self._publisher.undeclare()
+
+
+def _busy(status: dict[str, Any] | None) -> bool:
+    return (
+        status is not None
+        and status["frames"]["processed"] >= 3
+        and status["frames"]["dropped"] >= 1
+    )
+
+
+def test_sigterm_during_an_hd2k_stream_exits_0_within_2_seconds(router: Router) -> None:
+    assert router.session is not None
+    width, height = RESOLUTIONS["HD2K"]
+    frame = marker_frame(width, height, 2, clutter=True)
+    args = ("run", "-m", "client", "-e", router.endpoint, "--no-multicast-scouting")
+    session = router.session
+    with running_cli(*args, "--stats-interval-s", "0") as proc:
+        wait_for_status(session)
+        stream = _Stream(session, frame)
+        stream.start()
+        try:
+            # The worker is busy: frames keep coming faster than it processes them.
+            wait_until(
+                lambda: _busy(query_status(session, timeout=1.0)),
+                timeout=60.0,
+                what="the service processing and dropping frames",
+            )
+            started = time.monotonic()
+            proc.send_signal(signal.SIGTERM)
+            try:
+                code = proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                pytest.fail("no exit within 10 s of SIGTERM")
+            elapsed = time.monotonic() - started
+        finally:
+            stream.stop()
+        output = proc.stdout.read() if proc.stdout is not None else ""
+    assert code == 0, output
+    assert elapsed < 2.0, f"exit took {elapsed:.2f} s"
+    assert "event=signal signal=SIGTERM" in output
+    assert "event=stopped" in output
+    assert "Traceback" not in output
