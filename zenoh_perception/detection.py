@@ -93,6 +93,9 @@ def make_detector(name: str, dictionary: str) -> Detector:
     if name == "opencv":
         return OpenCvDetector(dictionary)
     if name == "fast":
-        return OpenCvDetector(dictionary)
+        # fast_detector builds on this module (Detection, aruco_dictionary): import it late
+        from zenoh_perception.fast_detector import FastDetector  # noqa: PLC0415
+
+        return FastDetector(dictionary)
     msg = f"unknown detector {name!r}; choose 'fast' or 'opencv'"
     raise SettingsError(msg)
