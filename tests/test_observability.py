@@ -247,11 +247,6 @@ def test_log_has_started_stats_rate_limited_rejections_and_stopped(service_logs:
     assert stopped[0]["rejected"] == "6"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cli.py LOG_FORMAT puts a space inside ts=, and service.py quotes rejection details "
-    "without escaping (proposed fix in the robustness report)",
-)
 def test_every_log_line_is_key_value(service_logs: _Logs) -> None:
     bad = [line for line in service_logs.lines if not KEY_VALUE_LINE.fullmatch(line)]
     assert bad == []

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from collections.abc import Callable, Sequence
 
@@ -11,11 +10,10 @@ import zenoh
 
 from zenoh_perception import __version__, demo, echo, replay, service, status
 from zenoh_perception.errors import PerceptionError, SettingsError
+from zenoh_perception.logs import configure_logging
 from zenoh_perception.settings import add_settings_arguments, settings_from_args
 from zenoh_perception.signals import stop_on_signals
 from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
-
-LOG_FORMAT = "ts=%(asctime)s level=%(levelname)s logger=%(name)s %(message)s"
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -138,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level, format=LOG_FORMAT, stream=sys.stderr)
+    configure_logging(args.log_level)
     zenoh.init_log_from_env_or("error")
     handler: Handler = args.handler
     try:

@@ -25,6 +25,7 @@ from zenoh_perception.debug_image import annotate, encode_compressed_image
 from zenoh_perception.detection import Detector
 from zenoh_perception.errors import FrameDecodeError, MessageDecodeError
 from zenoh_perception.frames import Frame, decode_image_cdr, decode_raw_frame, to_bgr
+from zenoh_perception.logs import kv
 from zenoh_perception.mailbox import LatestMailbox
 from zenoh_perception.pipeline import Analysis, Pipeline
 from zenoh_perception.pose import decode_camera_info
@@ -105,17 +106,18 @@ class PerceptionService:
         # Subscribe last: every frame that arrives finds the pipeline ready.
         self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
         log.info(
-            "event=started version=%s zid=%s input=%s tag=%s record=%s detector=%s "
-            "dictionary=%s policy=%s metric=%s",
-            __version__,
-            session.zid(),
-            s.input_key,
-            s.tag_key,
-            s.record_key,
-            s.detector,
-            s.dictionary,
-            s.policy,
-            s.metric,
+            "event=started %s",
+            kv(
+                version=__version__,
+                zid=session.zid(),
+                input=s.input_key,
+                tag=s.tag_key,
+                record=s.record_key,
+                detector=s.detector,
+                dictionary=s.dictionary,
+                policy=s.policy,
+                metric=s.metric,
+            ),
         )
 
     def close(self) -> None:
@@ -128,9 +130,9 @@ class PerceptionService:
             try:
                 entity.undeclare()
             except zenoh.ZError as err:  # session already closed
-                log.debug("event=undeclare_failed error=%s", err)
+                log.debug("event=undeclare_failed %s", kv(error=err))
         self._declared.clear()
-        log.info("event=stopped %s", _kv(self.stats.snapshot().as_dict()["frames"]))
+        log.info("event=stopped %s", kv(**self.stats.snapshot().as_dict()["frames"]))
 
     def __enter__(self) -> PerceptionService:
         self.start()
@@ -160,7 +162,13 @@ class PerceptionService:
             return
         if intrinsics != self._pipeline.intrinsics:
             self._pipeline.intrinsics = intrinsics
-            log.info("event=intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f", *_fields(intrinsics))
+            log.info(
+                "event=intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f",
+                intrinsics.fx,
+                intrinsics.fy,
+                intrinsics.cx,
+                intrinsics.cy,
+            )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         query.reply(
@@ -245,9 +253,7 @@ class PerceptionService:
         self.stats.on_rejected(reason)
         suppressed = self._gate.admit(reason)
         if suppressed is not None:
-            log.warning(
-                'event=rejected reason=%s suppressed=%d detail="%s"', reason, suppressed, err
-            )
+            log.warning("event=rejected %s", kv(reason=reason, suppressed=suppressed, detail=err))
 
     # -- observability -----------------------------------------------------------------------
 
@@ -285,14 +291,6 @@ class PerceptionService:
                 latency["p50"],
                 latency["p99"],
             )
-
-
-def _kv(values: dict[str, Any]) -> str:
-    return " ".join(f"{key}={value}" for key, value in values.items())
-
-
-def _fields(intrinsics: Any) -> tuple[float, float, float, float]:
-    return (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
 
 
 def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> None:

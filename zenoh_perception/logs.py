@@ -1,0 +1,55 @@
+"""Log lines in ``key=value`` form, safe against whatever text a payload carries.
+
+Every line is ``ts=<ISO 8601 UTC> level=<LEVEL> logger=<name>`` followed by the message's own
+``key=value`` pairs. Values that are not plain tokens are JSON-quoted (quotes, backslashes and
+newlines escaped), so a hostile string from the network can neither break a line in two nor
+forge a key.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import sys
+import time
+from typing import Final
+
+_PLAIN: Final = re.compile(r"[^\s\"=\\]*")
+
+
+def kv_value(value: object) -> str:
+    """``value`` as a key=value value: bare when it is a plain token, JSON-quoted otherwise."""
+    text = value if isinstance(value, str) else str(value)
+    if text and _PLAIN.fullmatch(text):
+        return text
+    return json.dumps(text)
+
+
+def kv(**fields: object) -> str:
+    """``a=1 b="two words"`` from keyword arguments, in order."""
+    return " ".join(f"{key}={kv_value(value)}" for key, value in fields.items())
+
+
+class KeyValueFormatter(logging.Formatter):
+    """``ts=... level=... logger=... <message>``; exceptions become one quoted ``exc=``."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        seconds = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(record.created))
+        millis = int(record.msecs)
+        line = (
+            f"ts={seconds}.{millis:03d}Z level={record.levelname} logger={record.name} "
+            f"{record.getMessage()}"
+        )
+        if record.exc_info:
+            line += f" exc={kv_value(self.formatException(record.exc_info))}"
+        return line.replace("\n", "\\n")
+
+
+def configure_logging(level: str = "INFO") -> None:
+    """Send key=value lines at ``level`` to stderr (replacing earlier handlers)."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(KeyValueFormatter())
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level)
