@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import zenoh
 
 from zenoh_perception import __version__
@@ -36,6 +37,8 @@ from zenoh_perception.stats import LogGate, ServiceStats
 log = logging.getLogger("zenoh_perception.service")
 
 MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
+#: Rejection reason of a decoded frame the pipeline failed on (a detector bug, counted).
+PROCESSING_ERROR = "processing_error"
 _POLL_S = 0.1
 
 
@@ -201,7 +204,13 @@ class PerceptionService:
             self._reject(err.reason, err)
             return
         decoded = time.monotonic_ns()
-        analysis = self._pipeline.process(frame)
+        try:
+            analysis = self._pipeline.process(frame)
+        except (cv2.error, ValueError) as err:
+            # A detector failing on one (valid) frame must not kill the worker: status and
+            # liveliness would still say "alive" while no frame is ever answered again.
+            self._reject(PROCESSING_ERROR, err)
+            return
         self._tag_pub.put(bytes(self._codec.encode(analysis.selected)))
         published = time.monotonic_ns()
         latency_ms = (published - arrival.received_ns) / 1e6
