@@ -193,18 +193,33 @@ def test_unrelated_frames_are_each_fully_scanned() -> None:
     assert detector.stats.scene_cuts == len(scenes) - 1  # the first frame has no predecessor
 
 
-def test_two_strip_scan_finds_small_and_large_tags_across_the_seam() -> None:
-    # tags straddling the middle row: a small one (in the overlap) and a large one (quarter-res)
-    quads = [(5, _square(300, 225, 30)), (6, _square(700, 200, 300)), (7, _square(100, 40, 24))]
+def test_two_thread_scan_finds_small_and_large_tags_across_the_seam() -> None:
+    # the upper part ends at row 216 + 64, the lower starts at 216 - 64: a small tag in the
+    # overlap, a large one across both parts (half-resolution scan), small ones elsewhere
+    quads = [
+        (5, _square(300, 200, 30)),
+        (6, _square(700, 100, 300)),
+        (7, _square(100, 40, 24)),
+        (8, _square(1000, 600, 26)),
+    ]
     gray = _gray(render_markers(1280, 720, quads, background=220))
     detector = FastDetector(config=FastDetectorConfig(scan_threads=2))
     try:
         found = _by_id(detector.detect(gray))
     finally:
         detector.close()
-    assert sorted(found) == [5, 6, 7]
+    assert sorted(found) == [5, 6, 7, 8]
     for tag_id, quad in quads:
         assert np.abs(found[tag_id] - quad).max() < 0.1
+
+
+def test_blurred_tags_are_found_by_the_half_resolution_scan() -> None:
+    quad = _square(400.3, 200.6, 90.0)
+    image = _gray(render_markers(1280, 720, [(9, quad)], background=210))
+    blurred = np.asarray(cv2.GaussianBlur(image, (0, 0), 3.0), dtype=np.uint8)
+    found = _by_id(FastDetector().detect(blurred))
+    assert list(found) == [9]
+    assert np.abs(found[9] - quad).max() < 0.3
 
 
 # ------------------------------------------------------------------ dictionaries, pose, errors

@@ -1,0 +1,140 @@
+"""``zenoh-perception bench --quick``: runs end to end and reports what it should (no timings
+are checked here: timings belong to the bench itself)."""
+
+from __future__ import annotations
+
+import io
+import json
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from zenoh_perception import cli
+from zenoh_perception.bench.detectors import (
+    RESOLUTIONS,
+    Plan,
+    Progress,
+    Tally,
+    format_report,
+    goals,
+    score,
+)
+from zenoh_perception.detection import Detection
+from zenoh_perception.scene import CameraModel, Effects, MarkerPose, SceneGenerator
+
+SUMMARY_KEYS = {
+    "frames",
+    "median_ms",
+    "p99_ms",
+    "mean_ms",
+    "recall",
+    "found",
+    "visible",
+    "false_positives",
+    "centre_error_px",
+    "distance_error_pct",
+}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    out = tmp_path_factory.mktemp("bench")
+    code = cli.main(
+        ["bench", "--quick", "--json", str(out / "bench.json"), "--plot", str(out / "bench.png")]
+    )
+    assert code == 0
+    data: dict[str, Any] = json.loads((out / "bench.json").read_text(encoding="utf-8"))
+    data["_plot"] = str(out / "bench.png")
+    return data
+
+
+def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, Any]) -> None:
+    quick = Plan.quick()
+    assert set(report["sets"]) == {*RESOLUTIONS, "video", "distractors"}
+    for name, entry in report["sets"].items():
+        for who in ("baseline", "fast"):
+            summary = entry[who]
+            assert set(summary) == SUMMARY_KEYS, (name, who)
+            assert summary["frames"] > 0
+            assert 0.0 < summary["median_ms"] <= summary["p99_ms"]
+            assert 0.0 <= summary["recall"] <= 1.0
+            assert summary["found"] <= summary["visible"]
+        assert entry["fast"]["visible"] == entry["baseline"]["visible"]  # the same frames
+        stats = entry["fast_stats"]
+        assert stats["frames"] == entry["fast"]["frames"]
+        assert 1 <= stats["full_scans"] <= stats["frames"]
+    assert report["sets"]["video"]["fast"]["frames"] == quick.video_frames
+    assert report["sets"]["VGA"]["fast"]["frames"] == quick.frames
+    # look-alikes fool the baseline, and the centre error of what the project finds is small
+    assert report["sets"]["distractors"]["baseline"]["false_positives"] > 0
+    for entry in report["sets"].values():
+        if entry["fast"]["centre_error_px"] is not None:
+            assert entry["fast"]["centre_error_px"] < 0.5
+
+
+def test_end_to_end_and_throughput_ran_through_the_service(report: dict[str, Any]) -> None:
+    e2e = report["e2e"]
+    assert set(e2e) == {"HD720", "video"}
+    for name, entry in e2e.items():
+        for who in ("opencv", "fast"):
+            summary = entry[who]
+            assert summary["frames"] == report["sets"][name]["fast"]["frames"]
+            assert 0.0 < summary["median_ms"] <= summary["p99_ms"]
+            assert summary["visible"] == report["sets"][name]["fast"]["visible"]
+    for who in ("opencv", "fast"):
+        run = report["throughput"][who]
+        assert run["published"] == round(60 * Plan.quick().throughput_s)
+        assert run["received"] == run["published"]  # the bench publishes with congestion block
+        assert run["processed"] + run["dropped"] == run["received"]
+        assert run["resolution"] == "1920x1080"
+
+
+def test_goals_have_a_verdict_and_the_plot_is_written(report: dict[str, Any]) -> None:
+    names = [g["goal"] for g in report["goals"]]
+    assert any(name.startswith("video HD720: mean e2e") for name in names)
+    assert any(name.startswith("independent HD720: median e2e") for name in names)
+    assert any(name.startswith("HD1080 at 60 Hz") for name in names)
+    assert any(name.startswith("issue 2") for name in names)
+    assert all(isinstance(g["pass"], bool) and g["threshold"] for g in report["goals"])
+    assert goals({k: v for k, v in report.items() if k != "goals"}) == report["goals"]
+    image = cv2.imread(report["_plot"])
+    assert image is not None
+    assert image.shape == (600, 960, 3)
+    assert int(image.min()) < 100  # something was drawn on the white canvas
+    text = format_report(report)
+    for heading in ("Detection", "End to end", "Throughput", "Goals"):
+        assert heading in text
+    assert text.count("PASS") + text.count("FAIL") == len(report["goals"])
+
+
+def test_score_counts_hits_misses_and_false_positives() -> None:
+    camera = CameraModel.named("VGA")
+    scene = SceneGenerator(camera, seed=1, effects=Effects.clean()).scene_from_poses(
+        [MarkerPose(3, 0.2, (-0.3, 0.0, 1.5)), MarkerPose(9, 0.2, (0.3, 0.0, 1.5))]
+    )
+    first = scene.markers[0]
+    exact = Detection(first.tag_id, first.corners.astype(np.float32))
+    wrong_place = Detection(9, first.corners.astype(np.float32))  # id 9, but where 3 is
+    found, visible, false_pos, centre, distance = score(scene, [exact, wrong_place])
+    assert (found, visible, false_pos) == (1, 2, 1)
+    assert centre == [pytest.approx(0.0, abs=1e-4)]
+    assert distance[0] == pytest.approx(0.0, abs=1e-3)
+    tally = Tally()
+    tally.add(scene, [exact], 2.0)
+    tally.add(scene, [], 4.0)
+    summary = tally.summary()
+    assert summary["recall"] == pytest.approx(0.25)
+    assert summary["median_ms"] == pytest.approx(3.0)
+
+
+def test_progress_bar_ends_full_on_one_line() -> None:
+    stream = io.StringIO()
+    bar = Progress(3, stream=stream, width=10)
+    for _ in range(5):
+        bar.step("work")
+    bar.close()
+    text = stream.getvalue()
+    assert text.endswith("\n")
+    assert "[##########]    3/3 work" in text

@@ -1,0 +1,1174 @@
+"""``zenoh-perception bench``: the project's detector against the baseline, side by side.
+
+Baseline: what users would otherwise run, BGRA -> BGR (``cv2.cvtColor``) then
+``cv2.aruco.ArucoDetector(DICT_4X4_50, DetectorParameters()).detectMarkers`` on the BGR image;
+its time includes the conversion. Project: BGRA -> grey then :class:`FastDetector`, timed the
+same way. Both run on the same generated frames (:mod:`zenoh_perception.scene`, exact ground
+truth), one frame after the other (alternating which goes first), in one process.
+
+Frame sets (realistic effects: blur, motion blur, noise, lighting, clutter):
+
+- ``VGA`` ... ``HD2K``: independent frames, 4 tags and 2 look-alikes each;
+- ``video``: consecutive HD720 frames of a rover driving toward 4 tags and 2 look-alikes;
+- ``distractors``: HD720 frames with 1 tag and 6 look-alikes (the false-positive goal).
+
+Per set and detector: median / p99 / mean time, recall (visible, unoccluded tags found with
+the right id), false positives (reported tags that are not a tag there), median centre error
+(pixels, mean of corners against the truth) and median distance error (solvePnP on the
+reported corners with the scene's intrinsics and tag size).
+
+End to end, through the real service (:class:`PerceptionService`) on an in-process pair of
+Zenoh peers over loopback (multicast off): raw BGRA frames are put one at a time and the next
+goes when the ``tag`` of the previous one is back (lockstep); recall is computed from the
+``perception/tags`` records. Throughput: HD1080 frames published at 60 Hz for a few seconds,
+every frame must be processed (none dropped by the latest-frame-wins mailbox).
+
+``--levers`` adds an ablation table (detection only) of the choices the detector made.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import logging
+import math
+import os
+import platform
+import queue
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Final
+
+import cv2
+import msgpack
+import numpy as np
+import numpy.typing as npt
+import zenoh
+
+from zenoh_perception import __version__
+from zenoh_perception.detection import (
+    Detection,
+    Detector,
+    aruco_dictionary,
+    detections_from_opencv,
+)
+from zenoh_perception.fast_detector import FastDetector, FastDetectorConfig
+from zenoh_perception.frames import RawFrameMeta
+from zenoh_perception.pose import Intrinsics, estimate_pose
+from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
+from zenoh_perception.service import PerceptionService
+from zenoh_perception.settings import Settings
+
+Image = npt.NDArray[np.uint8]
+Handler = Callable[[argparse.Namespace], int]
+
+RESOLUTIONS: Final = ("VGA", "HD720", "HD1080", "HD2K")
+DICTIONARY: Final = "DICT_4X4_50"
+VIDEO_RESOLUTION: Final = "HD720"
+THROUGHPUT_RESOLUTION: Final = "HD1080"
+THROUGHPUT_HZ: Final = 60.0
+
+# goal thresholds (issue 4, and issue 2's end-to-end figure)
+VIDEO_E2E_RATIO: Final = 0.5
+INDEPENDENT_E2E_RATIO: Final = 1.0
+CENTRE_ERROR_PX: Final = 0.5
+ISSUE2_RATIO: Final = 1.3
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """How much the bench measures."""
+
+    frames: int  # independent frames per resolution
+    video_frames: int
+    video_fps: float
+    distractor_frames: int
+    throughput_s: float
+    seed: int = 2024
+
+    @classmethod
+    def full(cls) -> Plan:
+        return cls(
+            frames=60, video_frames=300, video_fps=30.0, distractor_frames=40, throughput_s=8.0
+        )
+
+    @classmethod
+    def quick(cls) -> Plan:
+        return cls(frames=6, video_frames=24, video_fps=30.0, distractor_frames=6, throughput_s=1.0)
+
+
+# ------------------------------------------------------------------ progress
+
+
+class Progress:
+    """A one-line progress bar on stderr (``[#####.....]  42/100 label``)."""
+
+    def __init__(self, total: int, stream: Any = None, width: int = 30) -> None:
+        self.total = max(total, 1)
+        self.done = 0
+        self._stream = stream if stream is not None else sys.stderr
+        self._width = width
+        self._last = 0.0
+        self._label = ""
+
+    def step(self, label: str | None = None, amount: int = 1) -> None:
+        self.done = min(self.done + amount, self.total)
+        if label is not None:
+            self._label = label
+        now = time.monotonic()
+        if now - self._last >= 0.1 or self.done == self.total:
+            self._last = now
+            filled = round(self._width * self.done / self.total)
+            bar = "#" * filled + "." * (self._width - filled)
+            self._stream.write(f"\r[{bar}] {self.done:4d}/{self.total} {self._label:<40.40}")
+            self._stream.flush()
+
+    def close(self) -> None:
+        self._stream.write("\n")
+        self._stream.flush()
+
+
+# ------------------------------------------------------------------ scoring
+
+
+@dataclass(slots=True)
+class Tally:
+    """What one detector did on one frame set."""
+
+    times_ms: list[float] = field(default_factory=list)
+    found: int = 0
+    visible: int = 0
+    false_positives: int = 0
+    centre_errors: list[float] = field(default_factory=list)
+    distance_errors: list[float] = field(default_factory=list)
+
+    def add(self, scene: Scene, detections: Sequence[Detection], ms: float | None) -> None:
+        if ms is not None:
+            self.times_ms.append(ms)
+        found, visible, false_pos, centre, distance = score(scene, detections)
+        self.found += found
+        self.visible += visible
+        self.false_positives += false_pos
+        self.centre_errors += centre
+        self.distance_errors += distance
+
+    @property
+    def recall(self) -> float:
+        return self.found / self.visible if self.visible else 1.0
+
+    def summary(self) -> dict[str, Any]:
+        times = np.asarray(self.times_ms, dtype=np.float64)
+        out: dict[str, Any] = {
+            "frames": int(times.size),
+            "median_ms": _r(np.median(times)) if times.size else None,
+            "p99_ms": _r(np.percentile(times, 99)) if times.size else None,
+            "mean_ms": _r(times.mean()) if times.size else None,
+            "recall": round(self.recall, 4),
+            "found": self.found,
+            "visible": self.visible,
+            "false_positives": self.false_positives,
+            "centre_error_px": _r(np.median(self.centre_errors)) if self.centre_errors else None,
+            "distance_error_pct": (
+                _r(100.0 * float(np.median(self.distance_errors))) if self.distance_errors else None
+            ),
+        }
+        return out
+
+
+def _r(value: Any, digits: int = 3) -> float:
+    return round(float(value), digits)
+
+
+def score(
+    scene: Scene, detections: Sequence[Detection]
+) -> tuple[int, int, int, list[float], list[float]]:
+    """(found, visible, false positives, centre errors, relative distance errors) of a frame.
+
+    A detection is a tag if a tag with its id lies within max(3 px, 30 % of its side) of its
+    centre; it counts toward recall when that tag is fully visible and unoccluded (detections
+    of partly hidden tags are neither found nor false). Anything else is a false positive.
+    """
+    camera = scene.camera
+    intrinsics = Intrinsics(camera.fx, camera.fy, camera.cx, camera.cy)
+    targets = [m for m in scene.markers if m.visible and not m.occluded]
+    matched: set[int] = set()
+    false_pos = 0
+    centre: list[float] = []
+    distance: list[float] = []
+    for det in detections:
+        centre_det = np.asarray(det.corners, dtype=np.float64).mean(axis=0)
+        hit = None
+        for index, marker in enumerate(scene.markers):
+            if marker.tag_id != det.tag_id:
+                continue
+            err = float(np.linalg.norm(centre_det - marker.corner_mean))
+            if err <= max(3.0, 0.3 * marker.side_px):
+                hit = index
+                break
+        if hit is None:
+            false_pos += 1
+            continue
+        marker = scene.markers[hit]
+        if not (marker.visible and not marker.occluded) or hit in matched:
+            continue
+        matched.add(hit)
+        centre.append(float(np.linalg.norm(centre_det - marker.corner_mean)))
+        pose = estimate_pose(det.corners, marker.size_m, intrinsics)
+        if pose is not None:
+            distance.append(abs(pose.distance_m - marker.distance_m) / marker.distance_m)
+    return len(matched), len(targets), false_pos, centre, distance
+
+
+# ------------------------------------------------------------------ detectors under test
+
+
+class Baseline:
+    """BGRA -> BGR, then OpenCV's default ArUco detector."""
+
+    name = "baseline"
+
+    def __init__(self, parameters: Any = None, *, grey: bool = False) -> None:
+        params = parameters if parameters is not None else cv2.aruco.DetectorParameters()
+        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(DICTIONARY), params)
+        self._code = cv2.COLOR_BGRA2GRAY if grey else cv2.COLOR_BGRA2BGR
+
+    def run(self, image: Image) -> tuple[list[Detection], float]:
+        start = time.perf_counter()
+        converted = cv2.cvtColor(image, self._code)
+        corners, ids, _ = self._detector.detectMarkers(converted)
+        elapsed = (time.perf_counter() - start) * 1e3
+        return detections_from_opencv(corners, ids), elapsed
+
+
+class Project:
+    """BGRA -> grey, then a :class:`FastDetector` (one per frame set, like one per stream)."""
+
+    name = "fast"
+
+    def __init__(self, config: FastDetectorConfig | None = None) -> None:
+        self.detector = FastDetector(DICTIONARY, config)
+
+    def run(self, image: Image) -> tuple[list[Detection], float]:
+        start = time.perf_counter()
+        gray = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
+        detections = self.detector.detect(gray)
+        elapsed = (time.perf_counter() - start) * 1e3
+        return detections, elapsed
+
+
+def compare(
+    scenes: Sequence[Scene], runners: Sequence[Any], progress: Progress | None, label: str
+) -> list[Tally]:
+    """Run every runner on every frame (order rotating per frame); one tally per runner."""
+    tallies = [Tally() for _ in runners]
+    for index, scene in enumerate(scenes):
+        order = list(range(len(runners)))
+        shift = index % len(order)
+        for k in order[shift:] + order[:shift]:
+            detections, ms = runners[k].run(scene.image)
+            tallies[k].add(scene, detections, ms)
+        if progress is not None:
+            progress.step(label)
+    return tallies
+
+
+# ------------------------------------------------------------------ frame sets
+
+
+@dataclass(frozen=True, slots=True)
+class FrameSet:
+    name: str
+    resolution: str
+    scenes: list[Scene]
+    video: bool = False
+
+
+def frame_sets(plan: Plan, progress: Progress | None) -> list[FrameSet]:
+    """Independent frames per resolution, the video drive and the look-alike frames."""
+    sets: list[FrameSet] = []
+    for offset, resolution in enumerate(RESOLUTIONS):
+        generator = SceneGenerator(
+            CameraModel.named(resolution), seed=plan.seed + offset, effects=Effects.realistic()
+        )
+        scenes = []
+        for _ in range(plan.frames):
+            scenes.append(generator.random_scene(4, 2))
+            _tick(progress, f"scenes {resolution}")
+        sets.append(FrameSet(resolution, resolution, scenes))
+    generator = SceneGenerator(
+        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 10, effects=Effects.realistic()
+    )
+    video = []
+    for scene in generator.drive(plan.video_frames, fps=plan.video_fps, n_tags=4, n_distractors=2):
+        video.append(scene)
+        _tick(progress, "scenes video")
+    sets.append(FrameSet("video", VIDEO_RESOLUTION, video, video=True))
+    generator = SceneGenerator(
+        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 20, effects=Effects.realistic()
+    )
+    lookalikes = []
+    for _ in range(plan.distractor_frames):
+        lookalikes.append(generator.random_scene(1, 6))
+        _tick(progress, "scenes distractors")
+    sets.append(FrameSet("distractors", VIDEO_RESOLUTION, lookalikes))
+    return sets
+
+
+def _tick(progress: Progress | None, label: str) -> None:
+    if progress is not None:
+        progress.step(label)
+
+
+# ------------------------------------------------------------------ end to end (Zenoh)
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+def _config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps("peer"))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return conf
+
+
+class Loopback:
+    """Two in-process Zenoh peers on a free loopback port: one for the service, one for us."""
+
+    def __init__(self) -> None:
+        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.service_session = zenoh.open(_config([endpoint], []))
+        try:
+            self.client = zenoh.open(_config([], [endpoint]))
+        except zenoh.ZError:
+            _close(self.service_session)
+            raise
+
+    def __enter__(self) -> Loopback:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        _close(self.client)
+        _close(self.service_session)
+
+
+def _close(session: Any) -> None:
+    """Close a session (zenoh-python leaves close() unannotated)."""
+    session.close()
+
+
+def _undeclare(entity: Any) -> None:
+    """Undeclare a subscriber or publisher (unannotated in zenoh-python)."""
+    entity.undeclare()
+
+
+@dataclass(frozen=True, slots=True)
+class RawFrame:
+    payload: bytes
+    attachment: bytes
+
+
+def raw_frames(scenes: Iterable[Scene]) -> list[RawFrame]:
+    """Scenes as the raw BGRA payloads + msgpack attachments a camera would put."""
+    out = []
+    for seq, scene in enumerate(scenes):
+        height, width = scene.image.shape[:2]
+        meta = RawFrameMeta(width, height, seq=seq, frame_id="bench")
+        out.append(RawFrame(scene.image.tobytes(), meta.to_msgpack()))
+    return out
+
+
+class _Service:
+    """The service on ``peers.service_session`` and our publisher / subscribers."""
+
+    def __init__(self, peers: Loopback, detector: Detector, settings: Settings) -> None:
+        self.settings = settings
+        self.service = PerceptionService(peers.service_session, settings, detector=detector)
+        self.tags: queue.Queue[float] = queue.Queue()
+        self.records: dict[int, list[Detection]] = {}
+        self._lock = threading.Lock()
+        self.service.start()
+        client = peers.client
+        self._subs = [
+            client.declare_subscriber(settings.tag_key, self._on_tag),
+            client.declare_subscriber(settings.record_key, self._on_record),
+        ]
+        # block rather than drop when the link is busy: the bench measures the service, and
+        # a frame lost by Zenoh on loopback would count as neither processed nor dropped
+        self.publisher = client.declare_publisher(
+            settings.input_key, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+
+    def _on_tag(self, _sample: zenoh.Sample) -> None:
+        self.tags.put(time.perf_counter())
+
+    def _on_record(self, sample: zenoh.Sample) -> None:
+        record = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+        detections = [
+            Detection(int(tag["tag_id"]), np.asarray(tag["corners"], dtype=np.float32))
+            for tag in record["tags"]
+        ]
+        with self._lock:
+            self.records[int(record["seq"])] = detections
+
+    def put(self, frame: RawFrame) -> None:
+        self.publisher.put(frame.payload, attachment=frame.attachment)
+
+    def warm_up(self, width: int, height: int, timeout: float = 10.0) -> None:
+        """Put blank frames until one is answered (the whole path is then ready)."""
+        blank = RawFrame(
+            bytes(width * height * 4), RawFrameMeta(width, height, seq=10**9).to_msgpack()
+        )
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.put(blank)
+            try:
+                self.tags.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            self.drain()
+            return
+        msg = "the service did not answer within the warm-up time"
+        raise TimeoutError(msg)
+
+    def drain(self) -> None:
+        while True:
+            try:
+                self.tags.get_nowait()
+            except queue.Empty:
+                return
+
+    def close(self) -> None:
+        for sub in self._subs:
+            _undeclare(sub)
+        _undeclare(self.publisher)
+        self.service.close()
+
+
+def lockstep(
+    detector: Detector,
+    frames: Sequence[RawFrame],
+    scenes: Sequence[Scene],
+    progress: Progress | None,
+    label: str,
+) -> tuple[list[float], Tally]:
+    """End-to-end latencies (frame put -> ``tag`` received), one frame at a time, and the
+    recall / false positives of what the service published in its records."""
+    settings = _settings(detector)
+    latencies: list[float] = []
+    tally = Tally()
+    height, width = scenes[0].image.shape[:2]
+    with Loopback() as peers:
+        svc = _Service(peers, detector, settings)
+        try:
+            svc.warm_up(width, height)
+            for frame in frames:
+                start = time.perf_counter()
+                svc.put(frame)
+                latencies.append((svc.tags.get(timeout=10.0) - start) * 1e3)
+                _tick(progress, label)
+            deadline = time.monotonic() + 5.0
+            while len(svc.records) < len(frames) + 1 and time.monotonic() < deadline:
+                time.sleep(0.01)
+        finally:
+            svc.close()
+    for seq, scene in enumerate(scenes):
+        tally.add(scene, svc.records.get(seq, []), None)
+    tally.times_ms = latencies
+    return latencies, tally
+
+
+def throughput(
+    detector: Detector,
+    frames: Sequence[RawFrame],
+    *,
+    rate_hz: float,
+    seconds: float,
+    progress: Progress | None,
+    label: str,
+) -> dict[str, Any]:
+    """Publish ``frames`` (cycled forward and back) at ``rate_hz`` for ``seconds``."""
+    settings = _settings(detector)
+    order = list(range(len(frames))) + list(range(len(frames) - 2, 0, -1))
+    count = max(1, round(rate_hz * seconds))
+    height, width = _frame_size(frames[0])
+    with Loopback() as peers:
+        svc = _Service(peers, detector, settings)
+        try:
+            svc.warm_up(width, height)
+            before = svc.service.stats.snapshot()
+            start = time.perf_counter()
+            late = 0
+            for i in range(count):
+                due = start + i / rate_hz
+                delay = due - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+                elif delay < -0.5 / rate_hz:
+                    late += 1
+                svc.put(frames[order[i % len(order)]])
+                _tick(progress, label)
+            published_s = time.perf_counter() - start
+            stats = _settle(svc, before.received + count)
+        finally:
+            svc.close()
+    received = stats.received - before.received
+    processed = stats.processed - before.processed
+    dropped = stats.dropped - before.dropped
+    return {
+        "resolution": f"{width}x{height}",
+        "rate_hz": rate_hz,
+        "published": count,
+        "publish_s": _r(published_s),
+        "late_puts": late,
+        "received": received,
+        "processed": processed,
+        "dropped": dropped,
+        "processed_hz": _r(processed / published_s if published_s > 0 else 0.0),
+        "latency_p50_ms": _r(stats.latency_p50_ms),
+        "latency_p99_ms": _r(stats.latency_p99_ms),
+    }
+
+
+def _settings(detector: Detector) -> Settings:
+    name = "fast" if isinstance(detector, FastDetector) else "opencv"
+    return Settings(detector=name, stats_interval_s=0.0)
+
+
+def _frame_size(frame: RawFrame) -> tuple[int, int]:
+    meta = msgpack.unpackb(frame.attachment, raw=False)
+    return int(meta["height"]), int(meta["width"])
+
+
+def _settle(svc: _Service, expected_received: int, timeout: float = 5.0) -> Any:
+    """Service stats once every frame put has been received and handled (or on timeout)."""
+    deadline = time.monotonic() + timeout
+    stats = svc.service.stats.snapshot()
+    while time.monotonic() < deadline:
+        stats = svc.service.stats.snapshot()
+        handled = stats.processed + stats.dropped + sum(stats.rejected.values())
+        if stats.received >= expected_received and handled >= stats.received:
+            break
+        time.sleep(0.02)
+    return stats
+
+
+# ------------------------------------------------------------------ levers (ablation)
+
+
+def _params(**values: Any) -> Any:
+    params = cv2.aruco.DetectorParameters()
+    for key, value in values.items():
+        setattr(params, key, value)
+    return params
+
+
+def _levers() -> list[tuple[str, Callable[[], Any]]]:
+    one = {"adaptiveThreshWinSizeMin": 5, "adaptiveThreshWinSizeMax": 5}
+    read = {"perspectiveRemovePixelPerCell": 8, "errorCorrectionRate": 1.0}
+    base = FastDetectorConfig()
+
+    def fast(**changes: Any) -> Callable[[], Any]:
+        return lambda: Project(replace(base, **changes))
+
+    return [
+        ("baseline: BGRA->BGR, default parameters", Baseline),
+        ("grey straight from BGRA", lambda: Baseline(grey=True)),
+        (
+            "ArUco3 mode (min side 32 px canonical)",
+            lambda: Baseline(_params(useAruco3Detection=True), grey=True),
+        ),
+        (
+            "adaptive threshold: one 3 px window",
+            lambda: Baseline(
+                _params(adaptiveThreshWinSizeMin=3, adaptiveThreshWinSizeMax=3), grey=True
+            ),
+        ),
+        ("adaptive threshold: one 5 px window", lambda: Baseline(_params(**one), grey=True)),
+        (
+            "adaptive threshold: one 7 px window",
+            lambda: Baseline(
+                _params(adaptiveThreshWinSizeMin=7, adaptiveThreshWinSizeMax=7), grey=True
+            ),
+        ),
+        (
+            "adaptive threshold: windows 3, 13",
+            lambda: Baseline(_params(adaptiveThreshWinSizeMax=13), grey=True),
+        ),
+        (
+            "5 px window + 8 px/cell + 1-bit correction",
+            lambda: Baseline(_params(**one, **read), grey=True),
+        ),
+        ("+ refined corners, model-fit check (no tracking)", fast(track=False)),
+        ("+ tracking, full scan every 4 frames (project)", fast()),
+        ("tracking, full scan every 2 frames", fast(full_scan_period=2)),
+        ("tracking, full scan every 8 frames", fast(full_scan_period=8)),
+        ("no corner refinement (tracking on)", fast(refine=False)),
+        ("no model-fit check (tracking on)", fast(verify=False)),
+        ("two-strip scan on 2 threads (no tracking)", fast(track=False, scan_threads=2)),
+        ("two-strip scan on 2 threads + tracking", fast(scan_threads=2)),
+    ]
+
+
+def levers(sets: Sequence[FrameSet], progress: Progress | None) -> list[dict[str, Any]]:
+    """Each lever on the HD720 independent frames and on the video, detection only."""
+    chosen = [s for s in sets if s.name in (VIDEO_RESOLUTION, "video")]
+    rows: list[dict[str, Any]] = []
+    for threads in (cv2.getNumThreads(), 1):
+        previous = cv2.getNumThreads()
+        cv2.setNumThreads(threads)
+        try:
+            for name, make in _levers():
+                if threads == 1 and not name.startswith(("baseline", "+ tracking")):
+                    continue
+                row: dict[str, Any] = {"lever": name, "opencv_threads": threads}
+                for frame_set in chosen:
+                    runner = make()
+                    (tally,) = compare(frame_set.scenes, [runner], progress, f"lever {name}")
+                    row[frame_set.name] = tally.summary()
+                    if isinstance(runner, Project):
+                        runner.detector.close()
+                rows.append(row)
+        finally:
+            cv2.setNumThreads(previous)
+    return rows
+
+
+# ------------------------------------------------------------------ the bench
+
+
+def run_bench(plan: Plan, *, with_e2e: bool = True, with_levers: bool = False) -> dict[str, Any]:
+    """Measure everything; returns the JSON-ready report (see the module doc)."""
+    work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
+    if with_e2e:
+        work += 2 * (plan.frames + plan.video_frames)
+        work += 2 * round(THROUGHPUT_HZ * plan.throughput_s) + 30
+    if with_levers:
+        work += 20 * (plan.frames + plan.video_frames)
+    progress = Progress(work)
+    try:
+        report = _measure(plan, progress, with_e2e=with_e2e, with_levers=with_levers)
+    finally:
+        progress.close()
+    return report
+
+
+def _measure(
+    plan: Plan, progress: Progress, *, with_e2e: bool, with_levers: bool
+) -> dict[str, Any]:
+    sets = frame_sets(plan, progress)
+    report: dict[str, Any] = {
+        "version": __version__,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "opencv": cv2.__version__,
+            "opencv_threads": cv2.getNumThreads(),
+            "load_average": [round(v, 2) for v in os.getloadavg()],
+        },
+        "plan": {
+            "frames_per_resolution": plan.frames,
+            "video_frames": plan.video_frames,
+            "video_fps": plan.video_fps,
+            "distractor_frames": plan.distractor_frames,
+            "throughput_s": plan.throughput_s,
+            "seed": plan.seed,
+        },
+        "sets": {},
+    }
+    for frame_set in sets:
+        project = Project()
+        baseline_tally, fast_tally = compare(
+            frame_set.scenes, [Baseline(), project], progress, f"detect {frame_set.name}"
+        )
+        report["sets"][frame_set.name] = {
+            "resolution": frame_set.resolution,
+            "video": frame_set.video,
+            "baseline": baseline_tally.summary(),
+            "fast": fast_tally.summary(),
+            "fast_stats": _stats(project.detector),
+        }
+    if with_e2e:
+        report["e2e"] = _end_to_end(sets, plan, progress)
+        report["throughput"] = _throughput(plan, progress)
+    if with_levers:
+        report["levers"] = levers(sets, progress)
+    report["goals"] = goals(report)
+    return report
+
+
+def _stats(detector: FastDetector) -> dict[str, int]:
+    s = detector.stats
+    return {
+        "frames": s.frames,
+        "full_scans": s.full_scans,
+        "scene_cuts": s.scene_cuts,
+        "followed_direct": s.followed_direct,
+        "followed_roi": s.followed_roi,
+        "lost": s.lost,
+        "rejected": s.rejected,
+    }
+
+
+def _end_to_end(sets: Sequence[FrameSet], plan: Plan, progress: Progress) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for frame_set in sets:
+        if frame_set.name not in (VIDEO_RESOLUTION, "video"):
+            continue
+        frames = raw_frames(frame_set.scenes)
+        entry: dict[str, Any] = {}
+        for name, make in (("opencv", _opencv_detector), ("fast", _fast_detector)):
+            detector = make()
+            latencies, tally = lockstep(
+                detector, frames, frame_set.scenes, progress, f"e2e {frame_set.name} {name}"
+            )
+            summary = tally.summary()
+            times = np.asarray(latencies)
+            summary["median_ms"] = _r(np.median(times))
+            summary["mean_ms"] = _r(times.mean())
+            summary["p99_ms"] = _r(np.percentile(times, 99))
+            entry[name] = summary
+            if isinstance(detector, FastDetector):
+                entry["fast_stats"] = _stats(detector)
+                detector.close()
+        out[frame_set.name] = entry
+    return out
+
+
+def _opencv_detector() -> Detector:
+    from zenoh_perception.detection import make_detector  # noqa: PLC0415 - keep one factory
+
+    return make_detector("opencv", DICTIONARY)
+
+
+def _fast_detector() -> Detector:
+    return FastDetector(DICTIONARY)
+
+
+def _throughput(plan: Plan, progress: Progress) -> dict[str, Any]:
+    generator = SceneGenerator(
+        CameraModel.named(THROUGHPUT_RESOLUTION), seed=plan.seed + 30, effects=Effects.realistic()
+    )
+    count = max(2, min(90, round(THROUGHPUT_HZ * plan.throughput_s)))
+    frames = raw_frames(generator.drive(count, fps=THROUGHPUT_HZ, n_tags=4, n_distractors=2))
+    progress.step("throughput frames", 30)
+    out: dict[str, Any] = {}
+    for name, make in (("opencv", _opencv_detector), ("fast", _fast_detector)):
+        detector = make()
+        out[name] = throughput(
+            detector,
+            frames,
+            rate_hz=THROUGHPUT_HZ,
+            seconds=plan.throughput_s,
+            progress=progress,
+            label=f"60 Hz {name}",
+        )
+        if isinstance(detector, FastDetector):
+            detector.close()
+    return out
+
+
+# ------------------------------------------------------------------ goals
+
+
+def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every goal with its measured value, threshold and PASS / FAIL."""
+    sets = report["sets"]
+    rows: list[dict[str, Any]] = []
+
+    def goal(name: str, value: float | None, limit: str, passed: bool, note: str = "") -> None:
+        rows.append(
+            {
+                "goal": name,
+                "value": None if value is None else _r(value),
+                "threshold": limit,
+                "pass": bool(passed),
+                "note": note,
+            }
+        )
+
+    e2e = report.get("e2e")
+    video_base = sets["video"]["baseline"]
+    indep_base = sets[VIDEO_RESOLUTION]["baseline"]
+    if e2e is not None:
+        fast = e2e["video"]["fast"]
+        ratio = fast["mean_ms"] / video_base["mean_ms"]
+        goal(
+            "video HD720: mean e2e / baseline mean detection",
+            ratio,
+            f"<= {VIDEO_E2E_RATIO}",
+            ratio <= VIDEO_E2E_RATIO,
+            f"{fast['mean_ms']:.2f} ms vs {video_base['mean_ms']:.2f} ms",
+        )
+        goal(
+            "video HD720: recall (service records) >= baseline",
+            fast["recall"],
+            f">= {video_base['recall']:.3f}",
+            fast["recall"] >= video_base["recall"],
+        )
+        fast = e2e[VIDEO_RESOLUTION]["fast"]
+        ratio = fast["median_ms"] / indep_base["median_ms"]
+        goal(
+            "independent HD720: median e2e / baseline median detection",
+            ratio,
+            f"<= {INDEPENDENT_E2E_RATIO}",
+            ratio <= INDEPENDENT_E2E_RATIO,
+            f"{fast['median_ms']:.2f} ms vs {indep_base['median_ms']:.2f} ms",
+        )
+        goal(
+            "independent HD720: recall (service records) >= baseline",
+            fast["recall"],
+            f">= {indep_base['recall']:.3f}",
+            fast["recall"] >= indep_base["recall"],
+        )
+    fp = sets["distractors"]["fast"]["false_positives"]
+    goal(
+        "look-alike frames: false positives",
+        fp,
+        "== 0",
+        fp == 0,
+        f"baseline: {sets['distractors']['baseline']['false_positives']}",
+    )
+    fp_all = sum(s["fast"]["false_positives"] for s in sets.values())
+    goal("all frame sets: false positives", fp_all, "== 0", fp_all == 0)
+    errors = [s["fast"]["centre_error_px"] for s in sets.values() if s["fast"]["centre_error_px"]]
+    worst = max(errors) if errors else math.inf
+    goal(
+        "median centre error, worst set (px)",
+        worst,
+        f"<= {CENTRE_ERROR_PX}",
+        worst <= CENTRE_ERROR_PX,
+    )
+    for name in RESOLUTIONS:
+        recall = sets[name]["fast"]["recall"]
+        base = sets[name]["baseline"]["recall"]
+        goal(f"{name}: detection recall >= baseline", recall, f">= {base:.3f}", recall >= base)
+    throughput_report = report.get("throughput")
+    if throughput_report is not None:
+        fast = throughput_report["fast"]
+        goal(
+            "HD1080 at 60 Hz: every frame processed",
+            fast["processed"],
+            f"== {fast['published']} published, 0 dropped",
+            fast["processed"] == fast["published"] and fast["dropped"] == 0,
+            f"dropped {fast['dropped']}, {fast['processed_hz']:.1f} Hz",
+        )
+    if e2e is not None:
+        opencv = e2e[VIDEO_RESOLUTION]["opencv"]
+        ratio = opencv["median_ms"] / indep_base["median_ms"]
+        goal(
+            "issue 2: service (opencv) median e2e / bare default detector",
+            ratio,
+            f"<= {ISSUE2_RATIO}",
+            ratio <= ISSUE2_RATIO,
+            f"{opencv['median_ms']:.2f} ms vs {indep_base['median_ms']:.2f} ms",
+        )
+    return rows
+
+
+# ------------------------------------------------------------------ output
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    line = "  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True))
+    out = [line, "  ".join("-" * w for w in widths)]
+    out += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join(out)
+
+
+def _fmt(value: Any, spec: str = ".2f") -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return format(value, spec)
+    return str(value)
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """The human-readable tables."""
+    parts = []
+    rows = []
+    for name, entry in report["sets"].items():
+        for who in ("baseline", "fast"):
+            s = entry[who]
+            rows.append(
+                [
+                    name,
+                    who,
+                    _fmt(s["median_ms"]),
+                    _fmt(s["p99_ms"]),
+                    _fmt(s["mean_ms"]),
+                    f"{s['recall']:.3f} ({s['found']}/{s['visible']})",
+                    str(s["false_positives"]),
+                    _fmt(s["centre_error_px"], ".3f"),
+                    _fmt(s["distance_error_pct"], ".2f"),
+                ]
+            )
+    headers = [
+        "set",
+        "detector",
+        "median ms",
+        "p99 ms",
+        "mean ms",
+        "recall",
+        "FP",
+        "centre px",
+        "dist err %",
+    ]
+    parts.append(
+        "Detection (BGRA frame in, tags out; same frames, one process)\n" + _table(headers, rows)
+    )
+    if "e2e" in report:
+        rows = []
+        for name, entry in report["e2e"].items():
+            for who in ("opencv", "fast"):
+                s = entry[who]
+                rows.append(
+                    [
+                        name,
+                        who,
+                        _fmt(s["median_ms"]),
+                        _fmt(s["mean_ms"]),
+                        _fmt(s["p99_ms"]),
+                        f"{s['recall']:.3f}",
+                        str(s["false_positives"]),
+                    ]
+                )
+        parts.append(
+            "End to end through the service (put -> tag, lockstep, loopback Zenoh peers)\n"
+            + _table(["frames", "detector", "median ms", "mean ms", "p99 ms", "recall", "FP"], rows)
+        )
+    if "throughput" in report:
+        rows = []
+        for who, t in report["throughput"].items():
+            rows.append(
+                [
+                    who,
+                    t["resolution"],
+                    f"{t['rate_hz']:.0f}",
+                    str(t["published"]),
+                    str(t["processed"]),
+                    str(t["dropped"]),
+                    f"{t['processed_hz']:.1f}",
+                    _fmt(t["latency_p50_ms"]),
+                    _fmt(t["latency_p99_ms"]),
+                ]
+            )
+        parts.append(
+            "Throughput (frames published at a fixed rate)\n"
+            + _table(
+                [
+                    "detector",
+                    "size",
+                    "Hz",
+                    "published",
+                    "processed",
+                    "dropped",
+                    "proc Hz",
+                    "lat p50",
+                    "lat p99",
+                ],
+                rows,
+            )
+        )
+    if "levers" in report:
+        rows = []
+        for row in report["levers"]:
+            i = row.get(VIDEO_RESOLUTION, {})
+            v = row.get("video", {})
+            rows.append(
+                [
+                    row["lever"],
+                    str(row["opencv_threads"]),
+                    _fmt(i.get("median_ms")),
+                    _fmt(i.get("recall"), ".3f"),
+                    _fmt(i.get("false_positives")),
+                    _fmt(v.get("mean_ms")),
+                    _fmt(v.get("recall"), ".3f"),
+                    _fmt(v.get("false_positives")),
+                ]
+            )
+        parts.append(
+            "Levers (detection only; HD720 independent frames / HD720 video)\n"
+            + _table(
+                [
+                    "lever",
+                    "cv thr",
+                    "indep med ms",
+                    "recall",
+                    "FP",
+                    "video mean ms",
+                    "recall",
+                    "FP",
+                ],
+                rows,
+            )
+        )
+    rows = [
+        [
+            g["goal"],
+            _fmt(g["value"], ".3f"),
+            g["threshold"],
+            "PASS" if g["pass"] else "FAIL",
+            g["note"],
+        ]
+        for g in report["goals"]
+    ]
+    parts.append("Goals\n" + _table(["goal", "value", "threshold", "result", "note"], rows))
+    return "\n\n".join(parts)
+
+
+def plot(report: dict[str, Any], path: Path) -> None:
+    """PNG of detection latency (median solid, p99 dashed) against resolution."""
+    width, height = 960, 600
+    left, right, top, bottom = 90, 40, 60, 90
+    canvas = np.full((height, width, 3), 255, dtype=np.uint8)
+    names = [n for n in RESOLUTIONS if n in report["sets"]]
+    series = []
+    for who, colour in (("baseline", (40, 40, 220)), ("fast", (200, 110, 20))):
+        med = [report["sets"][n][who]["median_ms"] or 0.0 for n in names]
+        p99 = [report["sets"][n][who]["p99_ms"] or 0.0 for n in names]
+        series.append((who, colour, med, p99))
+    top_ms = max(max(p99) for _, _, _, p99 in series) * 1.1 or 1.0
+    plot_w, plot_h = width - left - right, height - top - bottom
+
+    def xy(i: int, ms: float) -> tuple[int, int]:
+        x = left + round(plot_w * (i + 0.5) / len(names))
+        y = top + plot_h - round(plot_h * ms / top_ms)
+        return x, y
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.rectangle(canvas, (left, top), (left + plot_w, top + plot_h), (0, 0, 0), 1)
+    step = _nice_step(top_ms / 6)
+    tick = 0.0
+    while tick <= top_ms:
+        y = xy(0, tick)[1]
+        cv2.line(canvas, (left, y), (left + plot_w, y), (225, 225, 225), 1)
+        cv2.putText(canvas, f"{tick:g}", (left - 60, y + 5), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        tick += step
+    for i, name in enumerate(names):
+        x = xy(i, 0)[0]
+        cv2.putText(canvas, name, (x - 30, top + plot_h + 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    for _who, colour, med, p99 in series:
+        points = [xy(i, v) for i, v in enumerate(med)]
+        for a, b in itertools.pairwise(points):
+            cv2.line(canvas, a, b, colour, 2, cv2.LINE_AA)
+        for p in points:
+            cv2.circle(canvas, p, 5, colour, -1, cv2.LINE_AA)
+        points = [xy(i, v) for i, v in enumerate(p99)]
+        for a, b in itertools.pairwise(points):
+            _dashed(canvas, a, b, colour)
+    cv2.putText(
+        canvas,
+        "Detection latency vs resolution (median solid, p99 dashed)",
+        (left, 35),
+        font,
+        0.7,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
+    cv2.putText(canvas, "ms", (20, top + plot_h // 2), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    for k, (who, colour, _, _) in enumerate(series):
+        y = top + 25 + 25 * k
+        cv2.line(canvas, (left + 20, y), (left + 60, y), colour, 2, cv2.LINE_AA)
+        text = "baseline (BGRA->BGR + OpenCV defaults)" if who == "baseline" else "fast (project)"
+        cv2.putText(canvas, text, (left + 70, y + 5), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), canvas):
+        msg = f"cannot write {path}"
+        raise OSError(msg)
+
+
+def _nice_step(raw: float) -> float:
+    exponent = math.floor(math.log10(raw)) if raw > 0 else 0
+    unit = 10.0**exponent
+    for mult in (1.0, 2.0, 5.0):
+        if mult * unit >= raw:
+            return mult * unit
+    return 10.0 * unit
+
+
+def _dashed(
+    canvas: Image, a: tuple[int, int], b: tuple[int, int], colour: tuple[int, int, int]
+) -> None:
+    length = math.hypot(b[0] - a[0], b[1] - a[1])
+    dashes = max(int(length // 10), 1)
+    for k in range(0, dashes, 2):
+        t0, t1 = k / dashes, min((k + 1) / dashes, 1.0)
+        p = (round(a[0] + (b[0] - a[0]) * t0), round(a[1] + (b[1] - a[1]) * t0))
+        q = (round(a[0] + (b[0] - a[0]) * t1), round(a[1] + (b[1] - a[1]) * t1))
+        cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
+
+
+# ------------------------------------------------------------------ CLI
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``bench`` subcommand."""
+    parser = sub.add_parser(
+        "bench",
+        help="benchmark the project's detector against OpenCV's defaults",
+        description=__doc__.split("\n\n")[0] if __doc__ else None,
+    )
+    parser.add_argument("--quick", action="store_true", help="few frames (well under a minute)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the report as JSON")
+    parser.add_argument(
+        "--plot", type=Path, metavar="PATH", help="write a PNG of latency vs resolution"
+    )
+    parser.add_argument("--frames", type=int, help="independent frames per resolution")
+    parser.add_argument("--video-frames", type=int, help="frames of the video drive")
+    parser.add_argument("--seed", type=int, help="scene seed")
+    parser.add_argument(
+        "--no-e2e", action="store_true", help="skip the service (Zenoh) measurements"
+    )
+    parser.add_argument("--levers", action="store_true", help="also measure each design lever")
+    parser.set_defaults(handler=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    plan = Plan.quick() if args.quick else Plan.full()
+    changes: dict[str, Any] = {}
+    if args.frames is not None:
+        changes["frames"] = max(1, args.frames)
+    if args.video_frames is not None:
+        changes["video_frames"] = max(2, args.video_frames)
+    if args.seed is not None:
+        changes["seed"] = args.seed
+    if changes:
+        plan = replace(plan, **changes)
+    service_log = logging.getLogger("zenoh_perception.service")
+    level = service_log.level
+    service_log.setLevel(logging.WARNING)  # one start / stop line per run would litter the bar
+    try:
+        report = run_bench(plan, with_e2e=not args.no_e2e, with_levers=args.levers)
+    finally:
+        service_log.setLevel(level)
+    print(format_report(report))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    if args.plot is not None:
+        plot(report, args.plot)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    top = argparse.ArgumentParser(prog="python -m zenoh_perception.bench.detectors")
+    commands = top.add_subparsers(dest="command", required=True)
+    register(commands)
+    parsed = top.parse_args(["bench", *sys.argv[1:]])
+    sys.exit(main(parsed))
