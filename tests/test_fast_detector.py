@@ -264,6 +264,14 @@ def test_distance_from_detected_corners_matches_ground_truth() -> None:
         assert pose.distance_m == pytest.approx(marker.distance_m, rel=0.01)
 
 
+@pytest.mark.parametrize("shape", [(1, 17), (17, 1), (2, 2000), (11, 11), (12, 40), (47, 47)])
+def test_tiny_and_thin_images_give_no_detections(shape: tuple[int, int]) -> None:
+    detector = FastDetector()
+    for value in (0, 128, 255):  # twice: through the tracking path as well
+        assert detector.detect(np.full(shape, value, np.uint8)) == []
+        assert detector.detect(np.full(shape, value, np.uint8)) == []
+
+
 def test_bad_configuration_and_input_are_refused() -> None:
     with pytest.raises(SettingsError):
         FastDetectorConfig(full_scan_period=0)

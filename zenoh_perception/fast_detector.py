@@ -55,6 +55,7 @@ Quad = npt.NDArray[np.float64]
 _THUMB_SIZE: Final = (40, 24)
 _ROI_TARGET_SIDE: Final = 48.0  # markers larger than this are searched in a downscaled region
 _MIN_SIDE_PX: Final = 8.0  # smallest marker side a full scan looks for
+_MIN_IMAGE_PX: Final = 12  # images narrower than this cannot hold a marker and quiet zone
 _OVERLAP_PX: Final = 64  # two-thread scans: rows shared by the upper and lower parts
 _UPPER_SHARE: Final = 0.3  # the upper part (this thread also scans the half-res frame)
 _PARALLEL_MIN_PIXELS: Final = 500_000
@@ -193,6 +194,9 @@ class FastDetector:
             raise ValueError(msg)
         cfg = self.config
         self.stats.frames += 1
+        if min(gray.shape) < _MIN_IMAGE_PX:  # no room for a marker and its quiet zone
+            self.reset()
+            return []
         frame = self._frame = self._frame + 1
         cut = self._scene_cut(gray) if cfg.track else True
         if cut:
@@ -277,6 +281,8 @@ class FastDetector:
         return _pairs(corners, ids)
 
     def _coarse(self, gray: Gray) -> list[tuple[int, Quad]]:
+        if min(gray.shape) < 4 * _MIN_IMAGE_PX:
+            return []  # the fine scan covers small images
         half: Gray = np.asarray(
             cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA), dtype=np.uint8
         )
