@@ -42,6 +42,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.refine import (
     MarkerModel,
+    Refined,
     acceptance_threshold,
     fit_marker,
     refine_corners,
@@ -59,6 +60,9 @@ _MIN_IMAGE_PX: Final = 12  # images narrower than this cannot hold a marker and 
 _OVERLAP_PX: Final = 64  # two-thread scans: rows shared by the upper and lower parts
 _UPPER_SHARE: Final = 0.3  # the upper part (this thread also scans the half-res frame)
 _PARALLEL_MIN_PIXELS: Final = 500_000
+_REVERIFY_FRAMES: Final = 5  # a followed marker is fitted again at least this often...
+_REVERIFY_SCALE: Final = 0.15  # ...and when its size changed by more than this fraction
+_FOLLOW_TOLERANCE_PX: Final = 0.4  # a followed marker's corners: one pass unless they moved more
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +104,8 @@ class _Track:
     tag_id: int
     corners: Quad
     seen: int  # frame number of the last confirmation
+    verified: int  # frame number of the last model fit that passed
+    verified_side: float  # marker side (pixels) then
     velocity: Quad = field(default_factory=lambda: np.zeros((4, 2)))
     tried: int = -1  # frame number of the last search
 
@@ -202,12 +208,10 @@ class FastDetector:
         if cut:
             self._tracks = []
         self._since_full += 1
-        full = cut or self._since_full >= cfg.full_scan_period
-        if not full:
-            for track in self._tracks:
-                self._follow(gray, track, frame)
-            full = any(track.seen != frame for track in self._tracks)  # lost one: look around
-        if full:
+        for track in self._tracks:  # (none after a cut)
+            self._follow(gray, track, frame)
+        lost = any(track.seen != frame for track in self._tracks)
+        if cut or lost or self._since_full >= cfg.full_scan_period:
             self._full_scan(gray, frame)
         self._tracks = [t for t in self._tracks if frame - t.seen <= cfg.max_missed]
         return [
@@ -232,6 +236,8 @@ class FastDetector:
         return False
 
     def _full_scan(self, gray: Gray, frame: int) -> None:
+        """Scan the frame; confirm only the candidates that are not tracked markers already
+        followed on this frame (those cost nothing more)."""
         self._since_full = 0
         self.stats.full_scans += 1
         for tag_id, quad in self._scan(gray):
@@ -242,13 +248,10 @@ class FastDetector:
             if refined is None:
                 continue
             if track is None:
-                self._tracks.append(_Track(tag_id, refined, frame))
+                self._tracks.append(_Track(tag_id, refined, frame, frame, _side(refined)))
             else:
                 track.update(refined, frame)
-        # a single threshold window can miss a marker the multi-window search still finds
-        for track in self._tracks:
-            if frame not in (track.seen, track.tried):
-                self._follow(gray, track, frame)
+                track.verified, track.verified_side = frame, _side(refined)
 
     def _nearest(self, tag_id: int, quad: Quad, frame: int) -> _Track | None:
         centre = _centre(quad)
@@ -316,28 +319,50 @@ class FastDetector:
         """Refined corners if the candidate is a real marker, else None."""
         refined = refine_corners(gray, quad, self._cells) if self.config.refine else None
         corners = refined.corners if refined is not None else quad
-        if self.config.verify:
-            reliable = refined is not None and refined.blur_reliable
-            blur = (refined.blur_x_px, refined.blur_y_px) if refined and reliable else None
-            fit = fit_marker(gray, corners, tag_id, self._model, blur)
-            if not fit.score <= acceptance_threshold(fit.cell_px, fit.noise):
-                self.stats.rejected += 1
-                return None
+        if self.config.verify and not self._passes(gray, tag_id, corners, refined):
+            return None
         return corners
 
+    def _passes(self, gray: Gray, tag_id: int, corners: Quad, refined: Refined | None) -> bool:
+        """The model fit at ``corners`` says: a real marker ``tag_id``."""
+        reliable = refined is not None and refined.blur_reliable
+        blur = (refined.blur_x_px, refined.blur_y_px) if refined and reliable else None
+        fit = fit_marker(gray, corners, tag_id, self._model, blur)
+        if fit.score <= acceptance_threshold(fit.cell_px, fit.noise):
+            return True
+        self.stats.rejected += 1
+        return False
+
     def _follow(self, gray: Gray, track: _Track, frame: int) -> None:
+        """Find a tracked marker near its prediction: refine the predicted corners directly;
+        the model fit is redone every :data:`_REVERIFY_FRAMES` frames or when the marker's
+        size changed by more than :data:`_REVERIFY_SCALE` (the border found where the marker
+        was predicted, at the size it had, is the marker in between); then the detector in a
+        region around the prediction."""
         track.tried = frame
         predicted = track.predicted(frame)
         if self.config.refine:
-            direct = self._confirm(gray, track.tag_id, predicted)
-            if direct is not None:
-                self.stats.followed_direct += 1
-                track.update(direct, frame)
-                return
+            refined = refine_corners(
+                gray, predicted, self._cells, max_iterations=2, tolerance_px=_FOLLOW_TOLERANCE_PX
+            )
+            if refined is not None:
+                side = _side(refined.corners)
+                fresh = frame - track.verified < _REVERIFY_FRAMES
+                same_size = abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE
+                if (fresh and same_size) or not self.config.verify:
+                    self.stats.followed_direct += 1
+                    track.update(refined.corners, frame)
+                    return
+                if self._passes(gray, track.tag_id, refined.corners, refined):
+                    self.stats.followed_direct += 1
+                    track.update(refined.corners, frame)
+                    track.verified, track.verified_side = frame, side
+                    return
         found = self._search_roi(gray, track, predicted)
         if found is not None:
             self.stats.followed_roi += 1
             track.update(found, frame)
+            track.verified, track.verified_side = frame, _side(found)
             return
         self.stats.lost += 1
 
