@@ -57,12 +57,11 @@ _THUMB_SIZE: Final = (40, 24)
 _ROI_TARGET_SIDE: Final = 48.0  # markers larger than this are searched in a downscaled region
 _MIN_SIDE_PX: Final = 8.0  # smallest marker side a full scan looks for
 _MIN_IMAGE_PX: Final = 12  # images narrower than this cannot hold a marker and quiet zone
-_OVERLAP_PX: Final = 64  # two-thread scans: rows shared by the upper and lower parts
-_UPPER_SHARE: Final = 0.3  # the upper part (this thread also scans the half-res frame)
-_PARALLEL_MIN_PIXELS: Final = 500_000
 _REVERIFY_FRAMES: Final = 5  # a followed marker is fitted again at least this often...
 _REVERIFY_SCALE: Final = 0.15  # ...and when its size changed by more than this fraction
 _FOLLOW_TOLERANCE_PX: Final = 0.4  # a followed marker's corners: one pass unless they moved more
+_SCAN_TOLERANCE_PX: Final = 0.25  # scan candidates start from OpenCV's sub-pixel corners
+_SHARP_BLUR_PX: Final = 1.5  # a frame whose markers' edges are this sharp needs no coarse scan
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,6 +107,7 @@ class _Track:
     verified_side: float  # marker side (pixels) then
     velocity: Quad = field(default_factory=lambda: np.zeros((4, 2)))
     tried: int = -1  # frame number of the last search
+    blur_px: float = math.inf  # edge blur at the last refinement
 
     def predicted(self, frame: int) -> Quad:
         out: Quad = self.corners + self.velocity * (frame - self.seen)
@@ -130,6 +130,7 @@ class DetectorStats:
     followed_roi: int = 0
     lost: int = 0
     rejected: int = 0
+    coarse_skipped: int = 0
 
 
 def _parameters(
@@ -236,22 +237,41 @@ class FastDetector:
         return False
 
     def _full_scan(self, gray: Gray, frame: int) -> None:
-        """Scan the frame; confirm only the candidates that are not tracked markers already
-        followed on this frame (those cost nothing more)."""
+        """Scan the frame at full resolution; then at half resolution with a larger threshold
+        window unless this frame is known to be sharp (a marker confirmed on it has edges
+        blurred by at most :data:`_SHARP_BLUR_PX`): only blur hides markers from the first
+        scan, and blur (camera motion, focus) is shared by the whole frame. Candidates that
+        are tracked markers already followed on this frame are not confirmed again."""
         self._since_full = 0
         self.stats.full_scans += 1
-        for tag_id, quad in self._scan(gray):
+        coarse = None
+        if self.config.scan_threads == 2 and min(gray.shape) >= 4 * _MIN_IMAGE_PX:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(1, thread_name_prefix="fast-detector")
+            coarse = self._pool.submit(self._coarse, gray)  # meanwhile, on the other core
+        self._take(gray, frame, self._detect_in(gray, coarse=False))
+        sharp = any(t.seen == frame and t.blur_px <= _SHARP_BLUR_PX for t in self._tracks)
+        if sharp:
+            self.stats.coarse_skipped += 1
+            return
+        self._take(gray, frame, coarse.result() if coarse is not None else self._coarse(gray))
+
+    def _take(self, gray: Gray, frame: int, candidates: list[tuple[int, Quad]]) -> None:
+        for tag_id, quad in candidates:
             track = self._nearest(tag_id, quad, frame)
             if track is not None and track.seen == frame:
-                continue  # already confirmed this frame by following it
-            refined = self._confirm(gray, tag_id, quad)
-            if refined is None:
+                continue  # already confirmed this frame (followed, or by the other scan)
+            confirmed = self._confirm(gray, tag_id, quad)
+            if confirmed is None:
                 continue
+            corners, blur = confirmed
             if track is None:
-                self._tracks.append(_Track(tag_id, refined, frame, frame, _side(refined)))
+                track = _Track(tag_id, corners, frame, frame, _side(corners))
+                self._tracks.append(track)
             else:
-                track.update(refined, frame)
-                track.verified, track.verified_side = frame, _side(refined)
+                track.update(corners, frame)
+                track.verified, track.verified_side = frame, _side(corners)
+            track.blur_px = blur
 
     def _nearest(self, tag_id: int, quad: Quad, frame: int) -> _Track | None:
         centre = _centre(quad)
@@ -291,37 +311,16 @@ class FastDetector:
         )
         return [(i, (q + 0.5) * 2.0 - 0.5) for i, q in self._detect_in(half, coarse=True)]
 
-    def _scan(self, gray: Gray) -> list[tuple[int, Quad]]:
-        """Candidates in the whole frame: a full-resolution scan with a small threshold
-        window (small, sharp markers) and a half-resolution scan with a larger one (blurred
-        and large markers; a quarter of the pixels).
-
-        With ``scan_threads == 2`` (frames of half a megapixel and more) the work is shared
-        with a second thread (OpenCV releases the GIL): it scans the lower part of the frame
-        at full resolution while this thread scans the upper part, then the half-resolution
-        frame. The parts overlap by :data:`_OVERLAP_PX` rows, so a marker up to about twice
-        as tall lies wholly in one of them; taller markers are the half-resolution scan's.
-        """
-        height, width = int(gray.shape[0]), int(gray.shape[1])
-        if self.config.scan_threads < 2 or height * width < _PARALLEL_MIN_PIXELS:
-            return _unique(self._detect_in(gray, coarse=False) + self._coarse(gray))
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(1, thread_name_prefix="fast-detector")
-        split = round(height * _UPPER_SHARE)
-        top = split - _OVERLAP_PX
-        lower = self._pool.submit(self._detect_in, gray[top:], False, 1)
-        upper = self._detect_in(gray[: split + _OVERLAP_PX], coarse=False)
-        coarse = self._coarse(gray)
-        shift = np.array([0.0, float(top)])
-        return _unique(upper + [(i, q + shift) for i, q in lower.result()] + coarse)
-
-    def _confirm(self, gray: Gray, tag_id: int, quad: Quad) -> Quad | None:
-        """Refined corners if the candidate is a real marker, else None."""
-        refined = refine_corners(gray, quad, self._cells) if self.config.refine else None
+    def _confirm(self, gray: Gray, tag_id: int, quad: Quad) -> tuple[Quad, float] | None:
+        """Refined corners and edge blur (px; inf if unmeasured) if the candidate is a real
+        marker, else None."""
+        refined = None
+        if self.config.refine:
+            refined = refine_corners(gray, quad, self._cells, tolerance_px=_SCAN_TOLERANCE_PX)
         corners = refined.corners if refined is not None else quad
         if self.config.verify and not self._passes(gray, tag_id, corners, refined):
             return None
-        return corners
+        return corners, refined.blur_px if refined is not None else math.inf
 
     def _passes(self, gray: Gray, tag_id: int, corners: Quad, refined: Refined | None) -> bool:
         """The model fit at ``corners`` says: a real marker ``tag_id``."""
@@ -349,6 +348,7 @@ class FastDetector:
                 side = _side(refined.corners)
                 fresh = frame - track.verified < _REVERIFY_FRAMES
                 same_size = abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE
+                track.blur_px = refined.blur_px
                 if (fresh and same_size) or not self.config.verify:
                     self.stats.followed_direct += 1
                     track.update(refined.corners, frame)
@@ -360,13 +360,14 @@ class FastDetector:
                     return
         found = self._search_roi(gray, track, predicted)
         if found is not None:
+            corners, track.blur_px = found
             self.stats.followed_roi += 1
-            track.update(found, frame)
-            track.verified, track.verified_side = frame, _side(found)
+            track.update(corners, frame)
+            track.verified, track.verified_side = frame, _side(corners)
             return
         self.stats.lost += 1
 
-    def _search_roi(self, gray: Gray, track: _Track, predicted: Quad) -> Quad | None:
+    def _search_roi(self, gray: Gray, track: _Track, predicted: Quad) -> tuple[Quad, float] | None:
         side = _side(predicted)
         motion = float(np.abs(track.velocity).max()) * 0.5
         margin = max(0.6 * side, 8.0) + motion
