@@ -194,11 +194,11 @@ def test_unrelated_frames_are_each_fully_scanned() -> None:
 
 
 def test_two_thread_scan_finds_small_and_large_tags_across_the_seam() -> None:
-    # the upper part ends at row 216 + 64, the lower starts at 216 - 64: a small tag in the
+    # the upper half ends at row 360 + 64, the lower starts at 360 - 64: a small tag in the
     # overlap, a large one across both parts (half-resolution scan), small ones elsewhere
     quads = [
-        (5, _square(300, 200, 30)),
-        (6, _square(700, 100, 300)),
+        (5, _square(300, 345, 30)),
+        (6, _square(700, 180, 330)),
         (7, _square(100, 40, 24)),
         (8, _square(1000, 600, 26)),
     ]

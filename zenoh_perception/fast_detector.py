@@ -41,11 +41,13 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.refine import (
+    FitRequest,
     MarkerModel,
     Refined,
     acceptance_threshold,
-    fit_marker,
+    fit_many,
     refine_corners,
+    refine_many,
 )
 from zenoh_perception.detection import Detection, aruco_dictionary
 from zenoh_perception.errors import SettingsError
@@ -60,8 +62,10 @@ _MIN_IMAGE_PX: Final = 12  # images narrower than this cannot hold a marker and 
 _REVERIFY_FRAMES: Final = 5  # a followed marker is fitted again at least this often...
 _REVERIFY_SCALE: Final = 0.15  # ...and when its size changed by more than this fraction
 _FOLLOW_TOLERANCE_PX: Final = 0.4  # a followed marker's corners: one pass unless they moved more
-_SCAN_TOLERANCE_PX: Final = 0.25  # scan candidates start from OpenCV's sub-pixel corners
+_SCAN_TOLERANCE_PX: Final = 0.1  # batched: extra passes for the few slow ones are cheap
 _SHARP_BLUR_PX: Final = 1.5  # a frame whose markers' edges are this sharp needs no coarse scan
+_OVERLAP_PX: Final = 64  # two-thread scans: rows shared by the upper and lower halves
+_PARALLEL_MIN_PIXELS: Final = 500_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,7 +73,7 @@ class FastDetectorConfig:
     """Knobs of :class:`FastDetector` (defaults are the measured best; see the module doc)."""
 
     track: bool = True
-    full_scan_period: int = 4
+    full_scan_period: int = 8
     scene_cut_level: float = 12.0
     max_missed: int = 2
     verify: bool = True
@@ -209,8 +213,7 @@ class FastDetector:
         if cut:
             self._tracks = []
         self._since_full += 1
-        for track in self._tracks:  # (none after a cut)
-            self._follow(gray, track, frame)
+        self._follow_all(gray, frame)  # (no tracks after a cut)
         lost = any(track.seen != frame for track in self._tracks)
         if cut or lost or self._since_full >= cfg.full_scan_period:
             self._full_scan(gray, frame)
@@ -237,37 +240,64 @@ class FastDetector:
         return False
 
     def _full_scan(self, gray: Gray, frame: int) -> None:
-        """Scan the frame at full resolution; then at half resolution with a larger threshold
-        window unless this frame is known to be sharp (a marker confirmed on it has edges
-        blurred by at most :data:`_SHARP_BLUR_PX`): only blur hides markers from the first
-        scan, and blur (camera motion, focus) is shared by the whole frame. Candidates that
-        are tracked markers already followed on this frame are not confirmed again."""
+        """Scan the frame at full resolution (:meth:`_fine`); then at half resolution with a
+        larger threshold window unless this frame is known to be sharp (a marker confirmed on
+        it has edges blurred by at most :data:`_SHARP_BLUR_PX`): only blur hides markers from
+        the first scan, and blur (camera motion, focus) is shared by the whole frame.
+        Candidates that are tracked markers already followed on this frame are not confirmed
+        again."""
         self._since_full = 0
         self.stats.full_scans += 1
-        coarse = None
-        if self.config.scan_threads == 2 and min(gray.shape) >= 4 * _MIN_IMAGE_PX:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(1, thread_name_prefix="fast-detector")
-            coarse = self._pool.submit(self._coarse, gray)  # meanwhile, on the other core
-        self._take(gray, frame, self._detect_in(gray, coarse=False))
-        sharp = any(t.seen == frame and t.blur_px <= _SHARP_BLUR_PX for t in self._tracks)
-        if sharp:
+        self._take(gray, frame, self._fine(gray))
+        if any(t.seen == frame and t.blur_px <= _SHARP_BLUR_PX for t in self._tracks):
             self.stats.coarse_skipped += 1
             return
-        self._take(gray, frame, coarse.result() if coarse is not None else self._coarse(gray))
+        self._take(gray, frame, self._coarse(gray))
+
+    def _fine(self, gray: Gray) -> list[tuple[int, Quad]]:
+        """Full-resolution candidates. With ``scan_threads == 2`` on frames of half a
+        megapixel and more, a second thread scans the lower half while this one scans the
+        upper half (OpenCV releases the GIL); the halves overlap by :data:`_OVERLAP_PX` rows,
+        so a marker up to about twice as tall lies wholly in one of them, and the second
+        thread also scans the frame at quarter resolution for taller ones."""
+        height, width = int(gray.shape[0]), int(gray.shape[1])
+        if self.config.scan_threads < 2 or height * width < _PARALLEL_MIN_PIXELS:
+            return self._detect_in(gray, coarse=False)
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="fast-detector")
+        top = height // 2 - _OVERLAP_PX
+        lower = self._pool.submit(self._lower_and_large, gray, top)
+        upper = self._detect_in(gray[: height // 2 + _OVERLAP_PX], coarse=False)
+        return _unique(upper + lower.result())
+
+    def _lower_and_large(self, gray: Gray, top: int) -> list[tuple[int, Quad]]:
+        shift = np.array([0.0, float(top)])
+        found = [(i, q + shift) for i, q in self._detect_in(gray[top:], False, worker=1)]
+        quarter: Gray = np.asarray(
+            cv2.resize(gray, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA),
+            dtype=np.uint8,
+        )
+        large = self._detect_in(quarter, coarse=True, worker=1)
+        return found + [(i, (q + 0.5) * 4.0 - 0.5) for i, q in large]
 
     def _take(self, gray: Gray, frame: int, candidates: list[tuple[int, Quad]]) -> None:
+        """Confirm the candidates (all at once) and update or start their tracks."""
+        fresh: list[tuple[int, Quad, _Track | None]] = []
         for tag_id, quad in candidates:
             track = self._nearest(tag_id, quad, frame)
-            if track is not None and track.seen == frame:
-                continue  # already confirmed this frame (followed, or by the other scan)
-            confirmed = self._confirm(gray, tag_id, quad)
-            if confirmed is None:
+            if track is None or track.seen != frame:  # else already confirmed on this frame
+                fresh.append((tag_id, quad, track))
+        confirmed = self._confirm_many(gray, [(tag_id, quad) for tag_id, quad, _ in fresh])
+        for (tag_id, _, known), result in zip(fresh, confirmed, strict=True):
+            if result is None:
                 continue
-            corners, blur = confirmed
+            corners, blur = result
+            track = known if known is not None else self._nearest(tag_id, corners, frame)
             if track is None:
                 track = _Track(tag_id, corners, frame, frame, _side(corners))
                 self._tracks.append(track)
+            elif track.seen == frame:
+                continue  # a second candidate for a marker confirmed on this frame
             else:
                 track.update(corners, frame)
                 track.verified, track.verified_side = frame, _side(corners)
@@ -314,23 +344,102 @@ class FastDetector:
     def _confirm(self, gray: Gray, tag_id: int, quad: Quad) -> tuple[Quad, float] | None:
         """Refined corners and edge blur (px; inf if unmeasured) if the candidate is a real
         marker, else None."""
-        refined = None
+        return self._confirm_many(gray, [(tag_id, quad)])[0]
+
+    def _confirm_many(
+        self, gray: Gray, candidates: list[tuple[int, Quad]]
+    ) -> list[tuple[Quad, float] | None]:
+        """:meth:`_confirm` for several candidates, refined and fitted in batches."""
+        if not candidates:
+            return []
+        quads = [quad for _, quad in candidates]
+        refined: list[Refined | None] = [None] * len(candidates)
         if self.config.refine:
-            refined = refine_corners(gray, quad, self._cells, tolerance_px=_SCAN_TOLERANCE_PX)
-        corners = refined.corners if refined is not None else quad
-        if self.config.verify and not self._passes(gray, tag_id, corners, refined):
-            return None
-        return corners, refined.blur_px if refined is not None else math.inf
+            refined = refine_many(
+                gray, quads, self._cells, max_iterations=5, tolerance_px=_SCAN_TOLERANCE_PX
+            )
+        corners = [r.corners if r is not None else q for r, q in zip(refined, quads, strict=True)]
+        passed = [True] * len(candidates)
+        if self.config.verify:
+            passed = self._passes_many(
+                gray, [(c, i) for c, (i, _) in zip(corners, candidates, strict=True)], refined
+            )
+        return [
+            (c, r.blur_px if r is not None else math.inf) if ok else None
+            for c, r, ok in zip(corners, refined, passed, strict=True)
+        ]
 
     def _passes(self, gray: Gray, tag_id: int, corners: Quad, refined: Refined | None) -> bool:
         """The model fit at ``corners`` says: a real marker ``tag_id``."""
-        reliable = refined is not None and refined.blur_reliable
-        blur = (refined.blur_x_px, refined.blur_y_px) if refined and reliable else None
-        fit = fit_marker(gray, corners, tag_id, self._model, blur)
-        if fit.score <= acceptance_threshold(fit.cell_px, fit.noise):
-            return True
-        self.stats.rejected += 1
-        return False
+        return self._passes_many(gray, [(corners, tag_id)], [refined])[0]
+
+    def _passes_many(
+        self, gray: Gray, items: list[tuple[Quad, int]], refined: list[Refined | None]
+    ) -> list[bool]:
+        requests: list[FitRequest] = []
+        for (corners, tag_id), r in zip(items, refined, strict=True):
+            blur = (r.blur_x_px, r.blur_y_px) if r is not None and r.blur_reliable else None
+            requests.append((corners, tag_id, blur))
+        verdicts = []
+        for fit in fit_many(gray, requests, self._model):
+            ok = fit.score <= acceptance_threshold(fit.cell_px, fit.noise)
+            self.stats.rejected += int(not ok)
+            verdicts.append(ok)
+        return verdicts
+
+    def _follow_all(self, gray: Gray, frame: int) -> None:
+        """Find every tracked marker near its prediction (see :meth:`_follow`), refining and
+        fitting them all in one batch."""
+        if not self._tracks:
+            return
+        if not self.config.refine:
+            for track in self._tracks:
+                self._follow(gray, track, frame)
+            return
+        predictions = [track.predicted(frame) for track in self._tracks]
+        refined = refine_many(
+            gray, predictions, self._cells, max_iterations=2, tolerance_px=_FOLLOW_TOLERANCE_PX
+        )
+        to_fit: list[tuple[_Track, Refined]] = []
+        search: list[_Track] = []
+        for track, r in zip(self._tracks, refined, strict=True):
+            track.tried = frame
+            if r is None:
+                search.append(track)
+                continue
+            track.blur_px = r.blur_px
+            side = _side(r.corners)
+            recent = frame - track.verified < _REVERIFY_FRAMES
+            if (recent and abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE) or not (
+                self.config.verify
+            ):
+                self.stats.followed_direct += 1
+                track.update(r.corners, frame)
+            else:
+                to_fit.append((track, r))
+        if to_fit:
+            verdicts = self._passes_many(
+                gray, [(r.corners, t.tag_id) for t, r in to_fit], [r for _, r in to_fit]
+            )
+            for (track, r), ok in zip(to_fit, verdicts, strict=True):
+                if not ok:
+                    search.append(track)
+                    continue
+                self.stats.followed_direct += 1
+                track.update(r.corners, frame)
+                track.verified, track.verified_side = frame, _side(r.corners)
+        for track in search:
+            self._search(gray, track, frame)
+
+    def _search(self, gray: Gray, track: _Track, frame: int) -> None:
+        found = self._search_roi(gray, track, track.predicted(frame))
+        if found is not None:
+            corners, track.blur_px = found
+            self.stats.followed_roi += 1
+            track.update(corners, frame)
+            track.verified, track.verified_side = frame, _side(corners)
+            return
+        self.stats.lost += 1
 
     def _follow(self, gray: Gray, track: _Track, frame: int) -> None:
         """Find a tracked marker near its prediction: refine the predicted corners directly;

@@ -32,6 +32,7 @@ Model fit (:func:`fit_marker`)
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -127,26 +128,57 @@ def refine_corners(
     cannot be measured (too little contrast between border and quiet zone, degenerate quad,
     or a correction larger than 0.75 cell).
     """
-    start = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    quad = start
-    blur = (0.0, 0.0)
-    reach = _HALF_PROFILE_PX
-    used = reach
+    return refine_many(gray, [corners], cells, max_iterations, tolerance_px)[0]
+
+
+def refine_many(
+    gray: Gray,
+    quads: Sequence[Quad],
+    cells: int,
+    max_iterations: int = 4,
+    tolerance_px: float = 0.2,
+) -> list[Refined | None]:
+    """:func:`refine_corners` for several markers at once: each iteration samples all the
+    markers still moving with one ``cv2.remap`` and a few numpy calls (their fixed cost is
+    what a single marker pays for)."""
+    starts = [np.asarray(q, dtype=np.float64).reshape(4, 2).tolist() for q in quads]
+    current: list[list[list[float]]] = [list(map(list, q)) for q in starts]
+    reach = [_HALF_PROFILE_PX] * len(quads)
+    blur = [(0.0, 0.0)] * len(quads)
+    used = [_HALF_PROFILE_PX] * len(quads)
+    failed = [False] * len(quads)
+    active = list(range(len(quads)))
     for _ in range(max_iterations):
-        refined = _refine_once(gray, quad, cells, reach)
-        if refined is None:
-            return None
-        moved = float(np.abs(refined[0] - quad).max())
-        quad, blur, used = refined
-        wanted = max(_HALF_PROFILE_PX, _BLUR_REACH * max(blur))  # blurred: look further
-        if moved < tolerance_px and wanted <= reach:
+        if not active:
             break
-        reach = wanted
-    d = start[_NEXT] - start
-    side = float(np.sqrt((d * d).sum(axis=1).min()))
-    if float(np.abs(quad - start).max()) > _MAX_SHIFT_CELLS * side / cells:
-        return None
-    return Refined(quad, blur[0], blur[1], used)
+        outcomes = _refine_batch(
+            gray, [current[i] for i in active], cells, [reach[i] for i in active]
+        )
+        still: list[int] = []
+        for i, outcome in zip(active, outcomes, strict=True):
+            if outcome is None:
+                failed[i] = True
+                continue
+            quad, blur[i], used[i] = outcome
+            moved = _largest_move(quad, current[i])
+            current[i] = quad
+            wanted = max(_HALF_PROFILE_PX, _BLUR_REACH * max(blur[i]))  # blurred: look further
+            if moved >= tolerance_px or wanted > reach[i]:
+                reach[i] = wanted
+                still.append(i)
+        active = still
+    out: list[Refined | None] = []
+    for i, start in enumerate(starts):
+        if failed[i]:
+            out.append(None)
+            continue
+        side = min(math.dist(start[k], start[(k + 1) % 4]) for k in range(4))
+        shift = _largest_move(current[i], start)
+        if shift > _MAX_SHIFT_CELLS * side / cells:
+            out.append(None)
+            continue
+        out.append(Refined(np.array(current[i]), blur[i][0], blur[i][1], used[i]))
+    return out
 
 
 _ALONG_LIST: Final = [float(t) for t in _ALONG]
@@ -176,48 +208,89 @@ def _profile_plan(ns: int) -> tuple[Floats, npt.NDArray[np.float32]]:
     return plan
 
 
-def _refine_once(
-    gray: Gray, quad: Quad, cells: int, reach_px: float
-) -> tuple[Quad, tuple[float, float], float] | None:
-    """One pass: profiles across the four sides, one line per side, corners where they meet.
+def _largest_move(a: list[list[float]], b: list[list[float]]) -> float:
+    return max(max(abs(p[0] - q[0]), abs(p[1] - q[1])) for p, q in zip(a, b, strict=True))
 
-    Per-side geometry is done with Python floats and the profiles with a handful of numpy
-    calls on one array: a numpy call on a tiny array costs microseconds, far more than the
-    arithmetic (this runs for every candidate and every tracked marker, every frame).
-    """
-    corners = quad.tolist()
+
+_Side = tuple[float, float, float, float, float, float, float]  # x0 y0 dx dy nx ny half
+
+
+def _sides(quad: list[list[float]], cells: int, reach_px: float) -> list[_Side] | None:
+    """Per side: start, direction, outward unit normal and half profile length."""
     area = 0.0
     for i in range(4):
-        (x0, y0), (x1, y1) = corners[i], corners[(i + 1) % 4]
+        (x0, y0), (x1, y1) = quad[i], quad[(i + 1) % 4]
         area += x0 * y1 - y0 * x1
     # outward normals: (u_y, -u_x) for the clockwise (y down) order cv2.aruco reports
     sign = 1.0 if area > 0 else -1.0
-    vectors = np.empty((12, 2))
-    sides: list[tuple[float, float, float, float, float, float, float]] = []
-    widest = 0.0
+    sides: list[_Side] = []
     for i in range(4):
-        (x0, y0), (x1, y1) = corners[i], corners[(i + 1) % 4]
+        (x0, y0), (x1, y1) = quad[i], quad[(i + 1) % 4]
         dx, dy = x1 - x0, y1 - y0
         length = math.hypot(dx, dy)
         if length < 4.0:
             return None
         nx, ny = sign * dy / length, -sign * dx / length
-        half = min(length * _HALF_PROFILE_CELLS / cells, reach_px)
-        widest = max(widest, half)
-        vectors[i] = (x0, y0)
-        vectors[4 + i] = (dx, dy)
-        vectors[8 + i] = (half * nx, half * ny)
-        sides.append((x0, y0, dx, dy, nx, ny, half))
+        sides.append((x0, y0, dx, dy, nx, ny, min(length * _HALF_PROFILE_CELLS / cells, reach_px)))
+    return sides
+
+
+def _refine_batch(
+    gray: Gray, quads: list[list[list[float]]], cells: int, reaches: list[float]
+) -> list[tuple[list[list[float]], tuple[float, float], float] | None]:
+    """One pass for each quad: profiles across the four sides, one line per side, corners
+    where they meet.
+
+    Geometry is done with Python floats and the profiles of all quads with a handful of
+    numpy calls on one array: a numpy call costs microseconds whatever its size, far more
+    than the arithmetic on a few points (this runs for every candidate and tracked marker).
+    """
+    geometry = [_sides(q, cells, r) for q, r in zip(quads, reaches, strict=True)]
+    valid = [g for g in geometry if g is not None]
+    if not valid:
+        return [None] * len(quads)
+    widest = max(side[6] for g in valid for side in g)
     lo_n, hi_n = _PROFILE_SAMPLES
     ns = min(max(2 * math.ceil(widest / _PROFILE_STEP_PX) + 1, lo_n), hi_n)
     coef, ends = _profile_plan(ns)
-    points = (coef @ vectors).astype(np.float32).reshape(1, -1, 2)
+    vectors = np.array(
+        [
+            [side[0:2] for side in g]
+            + [side[2:4] for side in g]
+            + [(side[6] * side[4], side[6] * side[5]) for side in g]
+            for g in valid
+        ]
+    )  # (m, 12, 2): 4 start corners, 4 side vectors, 4 half-profile normals
+    points = np.matmul(coef, vectors).astype(np.float32).reshape(1, -1, 2)
     samples = _remap(gray, points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    v = np.asarray(samples, dtype=np.float32).reshape(-1, ns)  # (4 * nt, ns)
+    v = np.asarray(samples, dtype=np.float32).reshape(-1, ns)  # (m * 4 * nt, ns)
     # per profile: inside (border) level, outside (quiet zone) level, sum, sum of squares;
     # the normalised profile f = (v - low) / span is never formed (fewer numpy calls)
     low, high, v_sum = (v @ ends).T.tolist()
     v_sq = np.einsum("ij,ij->i", v, v).tolist()
+    out: list[tuple[list[list[float]], tuple[float, float], float] | None] = []
+    block = 0
+    per_quad = 4 * len(_ALONG_LIST)
+    for g in geometry:
+        if g is None:
+            out.append(None)
+            continue
+        out.append(_lines_to_corners(g, ns, block, low=low, high=high, v_sum=v_sum, v_sq=v_sq))
+        block += per_quad
+    return out
+
+
+def _lines_to_corners(
+    sides: list[_Side],
+    ns: int,
+    first: int,
+    *,
+    low: list[float],
+    high: list[float],
+    v_sum: list[float],
+    v_sq: list[float],
+) -> tuple[list[list[float]], tuple[float, float], float] | None:
+    """Edge positions of one quad's profiles -> a line per side -> corners, and blur."""
     nt = len(_ALONG_LIST)
     step_unit = 2.0 / (ns - 1)
     lines: list[tuple[float, float, float, float]] = []
@@ -228,7 +301,7 @@ def _refine_once(
         step = half * step_unit
         sw = st = stt = so = sto = 0.0
         for k in range(nt):
-            j = i * nt + k
+            j = first + i * nt + k
             span = high[j] - low[j]
             if span <= _MIN_EDGE_CONTRAST:
                 continue
@@ -250,7 +323,7 @@ def _refine_once(
         a = (so - b * st) / sw
         lines.append((x0 + a * nx, y0 + a * ny, dx + b * nx, dy + b * ny))
         weights[(i + 1) % 2] += sw
-    out: list[tuple[float, float]] = []
+    corners: list[list[float]] = []
     for i in range(4):  # corner i is where side i-1 meets side i
         px, py, ux, uy = lines[i - 1]
         qx, qy, vx, vy = lines[i]
@@ -258,14 +331,13 @@ def _refine_once(
         if abs(cross) < 1e-6 * (ux * ux + uy * uy):
             return None
         t = ((qx - px) * vy - (qy - py) * vx) / cross
-        out.append((px + t * ux, py + t * uy))
-    refined = np.array(out)
-    if not np.all(np.isfinite(refined)):
-        return None
-    reached = min(side[6] for side in sides)
+        x, y = px + t * ux, py + t * uy
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return None
+        corners.append([x, y])
     root_pi = math.sqrt(math.pi)
     blur = (root_pi * spreads[0] / weights[0], root_pi * spreads[1] / weights[1])
-    return refined, blur, reached
+    return corners, blur, min(side[6] for side in sides)
 
 
 @dataclass(frozen=True, slots=True)
@@ -321,6 +393,7 @@ class MarkerModel:
         self._axis = (np.arange(per_axis) + 0.5) / FIT_SAMPLES_PER_CELL - 1.0
         gx, gy = np.meshgrid(self._axis, self._axis)
         self._grid = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32).reshape(-1, 1, 2)
+        self._grid_h = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
         self._edges = np.arange(total + 1, dtype=np.float64) - 1.0  # cell boundaries
         inner = (self._axis > 1.0) & (self._axis < self.cells - 1.0)
         self.code_mask = (inner[:, None] & inner[None, :]).ravel()  # samples on the code cells
@@ -422,10 +495,24 @@ class MarkerModel:
         self._stats[key] = entry
         return entry
 
+    def homography(self, corners: Quad) -> Floats:
+        """(3, 3) map from marker cell coordinates to the image for a marker at ``corners``."""
+        h = cv2.getPerspectiveTransform(self._square, np.asarray(corners, dtype=np.float32))
+        out: Floats = np.asarray(h, dtype=np.float64)
+        return out
+
     def sample_points(self, corners: Quad) -> npt.NDArray[np.float32]:
         """(N, 1, 2) image coordinates of the fit's sample points for a marker at ``corners``."""
-        h = cv2.getPerspectiveTransform(self._square, np.asarray(corners, dtype=np.float32))
+        h = self.homography(corners)
         out = np.asarray(cv2.perspectiveTransform(self._grid, h), dtype=np.float32)
+        return out
+
+    def sample_many(self, gray: Gray, homographies: Floats) -> Floats:
+        """(m, N) bilinear samples at the fit's points of m markers (their homographies)."""
+        mapped = np.matmul(self._grid_h, homographies.transpose(0, 2, 1))  # (m, N, 3)
+        xy = (mapped[:, :, :2] / mapped[:, :, 2:3]).astype(np.float32).reshape(1, -1, 2)
+        samples = _remap(gray, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out: Floats = np.asarray(samples, dtype=np.float64).reshape(len(homographies), -1)
         return out
 
 
@@ -446,31 +533,77 @@ def fit_marker(
     The score is the code-cell residual in excess of the noise (measured on the flat middle
     of the border cells), over the contrast: image noise alone does not make a marker fail.
     """
-    quad = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = quad.tolist()
-    top, bottom = math.hypot(x1 - x0, y1 - y0), math.hypot(x2 - x3, y2 - y3)
-    left, right = math.hypot(x3 - x0, y3 - y0), math.hypot(x2 - x1, y2 - y1)
-    cell_x = (top + bottom) / (2.0 * model.cells)
-    cell_y = (left + right) / (2.0 * model.cells)
-    cell_px = min(cell_x, cell_y)
-    if not cell_px > 0.0:
-        return FitResult(math.inf, 0.0, 0.0, cell_px, math.inf)
-    xy = model.sample_points(quad).reshape(1, -1, 2)
-    samples = _remap(gray, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    obs = np.asarray(samples, dtype=np.float64).reshape(-1)
-    if blur is not None and (cell_px < MIN_CELL_FOR_BLUR_PX or not min(blur) > 0.0):
-        blur = None
-    models = model.centred(tag_id, cell_x, cell_y, blur)
-    split = obs[:, None] * model.subsets  # (N, 3): x over all, code, flat samples
-    cross = (models.centred @ split).tolist()  # (nsig, 3): sum(m_k x) over each subset
-    sum_all, sum_code, sum_flat = (obs @ model.subsets).tolist()
-    sq_all, sq_code, sq_flat = ((obs * obs) @ model.subsets).tolist()
-    mean = sum_all / obs.size
+    return fit_many(gray, [(corners, tag_id, blur)], model)[0]
+
+
+FitRequest = tuple[Quad, int, "tuple[float, float] | None"]
+
+
+def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> list[FitResult]:
+    """:func:`fit_marker` for several (corners, id, blur) at once: one ``cv2.remap`` and a
+    few batched numpy calls for all of them."""
+    results: list[FitResult | None] = [None] * len(requests)
+    todo: list[tuple[int, float, _Models]] = []
+    homographies = []
+    for index, (corners, tag_id, measured) in enumerate(requests):
+        quad = np.asarray(corners, dtype=np.float64).reshape(4, 2)
+        (x0, y0), (x1, y1), (x2, y2), (x3, y3) = quad.tolist()
+        top, bottom = math.hypot(x1 - x0, y1 - y0), math.hypot(x2 - x3, y2 - y3)
+        left, right = math.hypot(x3 - x0, y3 - y0), math.hypot(x2 - x1, y2 - y1)
+        cell_x = (top + bottom) / (2.0 * model.cells)
+        cell_y = (left + right) / (2.0 * model.cells)
+        cell_px = min(cell_x, cell_y)
+        if not cell_px > 0.0:
+            results[index] = FitResult(math.inf, 0.0, 0.0, cell_px, math.inf)
+            continue
+        blur = measured
+        if blur is not None and (cell_px < MIN_CELL_FOR_BLUR_PX or not min(blur) > 0.0):
+            blur = None
+        todo.append((index, cell_px, model.centred(tag_id, cell_x, cell_y, blur)))
+        homographies.append(model.homography(quad))
+    if todo:
+        observed = model.sample_many(gray, np.stack(homographies))  # (m, N)
+        width = max(len(item[2].sigmas) for item in todo)
+        stacked = np.zeros((len(todo), width, observed.shape[1]))
+        for k, item in enumerate(todo):
+            stacked[k, : len(item[2].sigmas)] = item[2].centred
+        split = observed[:, :, None] * model.subsets  # (m, N, 3): x over all, code, flat
+        cross_all = np.matmul(stacked, split).tolist()  # (m, nsig, 3): sum(m_k x) per subset
+        sums_all = (observed @ model.subsets).tolist()
+        squares_all = ((observed * observed) @ model.subsets).tolist()
+        n = int(observed.shape[1])
+        for k, (index, cell_px, models) in enumerate(todo):
+            results[index] = _score(
+                models,
+                model,
+                cell_px,
+                n,
+                cross=cross_all[k],
+                sums=sums_all[k],
+                squares=squares_all[k],
+            )
+    return [r if r is not None else FitResult(math.inf, 0.0, 0.0, 0.0, math.inf) for r in results]
+
+
+def _score(
+    models: _Models,
+    model: MarkerModel,
+    cell_px: float,
+    n: int,
+    *,
+    cross: list[list[float]],
+    sums: list[float],
+    squares: list[float],
+) -> FitResult:
+    """The fit of one marker from its sample sums (see :func:`fit_marker`)."""
+    sum_all, sum_code, sum_flat = sums
+    sq_all, sq_code, sq_flat = squares
+    mean = sum_all / n
     syy = sq_all - sum_all * mean
     best, best_rss, c = -1, math.inf, 0.0
-    for k, row in enumerate(cross):
-        contrast = row[0] / models.norms[k]  # the models are centred: no mean term
-        rss = syy - row[0] * contrast
+    for k in range(len(models.sigmas)):
+        contrast = cross[k][0] / models.norms[k]  # the models are centred: no mean term
+        rss = syy - cross[k][0] * contrast
         if contrast > _MIN_FIT_CONTRAST and rss < best_rss:
             best, best_rss, c = k, rss, contrast
     if best < 0:
