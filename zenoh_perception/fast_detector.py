@@ -1,32 +1,52 @@
 """The project's detector: OpenCV ArUco candidates, verified and refined, tracked between frames.
 
-Design (measured reasons: see "Measurements" below and ``zenoh-perception bench``)
---------------------------------------------------------------------------------
-1. Full scan. ``cv2.aruco.ArucoDetector`` on the grey frame with ONE adaptive-threshold window
-   (3 px) instead of OpenCV's three (3, 13, 23): thresholding and contour finding dominate the
-   cost and scale with the number of windows, while the small window alone still finds the
-   small, far tags (larger windows only add large tags, which the small window also finds).
-   Bits are read with 8 px per cell instead of 4 and one bit error is corrected (the default
-   corrects none for DICT_4X4_50): together they read markers from about 11 px wide, where the
-   default misses most; the false ids this could add are removed by step 2.
-2. Verification and refinement of every candidate (:mod:`zenoh_perception.detect.refine`):
-   corners are re-measured from the four outer border edges (sub-pixel, about 0.02 px median
-   centre error), then the ideal marker, quiet zone included, is fitted photometrically. Codes
-   without a white quiet zone, bright blobs and pictograms in dark boxes (which decode as valid
-   DICT_4X4_50 ids with the default detector) fit badly and are rejected.
-3. Tracking. A confirmed marker becomes a track. On the next frames it is looked for where its
-   constant-velocity prediction puts it: first by refining the predicted corners directly and
-   fitting the model (no detection at all), then, if that fails, by running the detector in a
-   small region around the prediction (downscaled for large markers). Full scans then only run
-   every ``full_scan_period`` frames to discover new markers, or at once when the frame does not
-   look like the previous one (scene cut: a 40x24 thumbnail differs by more than
-   ``scene_cut_level`` grey levels on average), or when a track is lost.
+Design, and why (figures from ``zenoh-perception bench --levers``, HD720, same frames, one
+run; the baseline is BGRA->BGR + ``cv2.aruco.ArucoDetector`` with default parameters)
+-------------------------------------------------------------------------------------------
+1. Full scan at full resolution: ``cv2.aruco.ArucoDetector`` on the grey frame (converted
+   straight from BGRA by the pipeline) with ONE adaptive-threshold window of 5 px instead of
+   OpenCV's three (3, 13, 23 px). Thresholding and contour finding dominate the cost and scale
+   with the number of windows: one 5 px window takes about 0.3x the baseline's time and finds
+   as many tags (3 px alone loses blurred tags, 7 px small ones, 3+13 px costs 0.5x for
+   nothing more). Cells are read with 8 px per cell instead of 4 and one bit error is
+   corrected (OpenCV corrects none for DICT_4X4_50): +15 % recall on the video, whose far tags
+   are 11-20 px wide. ArUco3 mode is not used: it loses a third of the tags (all the small
+   ones) for no gain. OpenCV's sub-pixel corners are kept as a start for step 2.
+2. Every candidate is refined and checked (:mod:`zenoh_perception.detect.refine`), all of a
+   frame's candidates in one batch: corners from lines fitted to the four outer border edges
+   (median centre error about 0.02 px, ten times below OpenCV's), then the ideal marker, white
+   quiet zone included, blurred like its own border edges, is fitted to the image; the code
+   cells' residual beyond the image noise must be small. This rejects codes without a quiet
+   zone, bright blobs and pictograms in dark boxes (look-alikes OpenCV decodes as valid ids):
+   about 98 % of the baseline's false positives go; the rest are look-alikes whose cells are
+   2-5 px, where blur makes a pictogram's round strokes look like square cells (the threshold
+   is what keeps recall at least the baseline's on small real tags).
+3. A half-resolution scan with a 9 px window (a quarter of the pixels) finds tags too blurred
+   for the 5 px window (strong motion blur: with it, recall under heavy blur stays near the
+   baseline's instead of collapsing). It only runs when the frame is not known to be sharp
+   (no marker confirmed on it with edges blurred by at most 1.5 px): blur is shared by the
+   whole frame, so on sharp frames it could only find what step 1 found.
+4. Tracking. A confirmed marker becomes a track. On the next frames its corners are refined
+   where its constant-velocity prediction puts them (all tracks in one batch), and the model
+   fit is redone every 5 frames or when its size changed by 15 %; a track that cannot be
+   refined there is searched for with the detector in a region around the prediction. Full
+   scans then only run every ``full_scan_period`` (8) frames, or at once when a track is lost
+   or the frame does not look like the previous one (scene cut: a 40x24 thumbnail differs by
+   more than ``scene_cut_level`` grey levels on average). On the video this is what makes the
+   detector about 6x faster than the baseline per frame, with more recall (tracks hold small
+   tags the scan reads only now and then).
 
 Guarantees: a marker that a full scan finds is reported at most ``full_scan_period`` frames
-after it appears, and on the very frame it appears when the frame is a scene cut (so unrelated
-frames are each fully scanned). Only markers confirmed on the current frame are reported: a
-marker that disappears is not reported on the next frame (tracks that miss are searched for up
-to ``max_missed`` frames, silently, then dropped). One instance per stream.
+after it appears, and on the very frame it appears when that frame is a scene cut, so
+unrelated frames are each fully scanned (independent frames: every frame is a cut). Only
+markers confirmed on the current frame are reported: a marker that disappears is not reported
+on the next frame (a lost track is searched for, silently, for up to ``max_missed`` frames).
+One instance per stream; not thread-safe.
+
+Measured and dropped: sharing the scan with a second thread (overlapping halves; OpenCV
+releases the GIL) pays only on an otherwise idle second core, and on this shared 2-core box it
+lost more than it won (``scan_threads=2`` keeps it available); ``cv2.setNumThreads(1)`` makes
+no measurable difference to the project's detector (its scan has one window).
 """
 
 from __future__ import annotations

@@ -397,7 +397,7 @@ class _Service:
         self.settings = settings
         self.service = PerceptionService(peers.service_session, settings, detector=detector)
         self.tags: queue.Queue[float] = queue.Queue()
-        self.records: dict[int, list[Detection]] = {}
+        self._raw_records: list[bytes] = []
         self._lock = threading.Lock()
         self.service.start()
         client = peers.client
@@ -415,13 +415,27 @@ class _Service:
         self.tags.put(time.perf_counter())
 
     def _on_record(self, sample: zenoh.Sample) -> None:
-        record = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
-        detections = [
-            Detection(int(tag["tag_id"]), np.asarray(tag["corners"], dtype=np.float32))
-            for tag in record["tags"]
-        ]
+        # decoded later: this callback must not compete for the GIL with a service at work
         with self._lock:
-            self.records[int(record["seq"])] = detections
+            self._raw_records.append(sample.payload.to_bytes())
+
+    def decoded_records(self) -> dict[int, list[Detection]]:
+        """seq -> the detections of every record received so far."""
+        with self._lock:
+            raw = list(self._raw_records)
+        out: dict[int, list[Detection]] = {}
+        for payload in raw:
+            record = msgpack.unpackb(payload, raw=False)
+            out[int(record["seq"])] = [
+                Detection(int(tag["tag_id"]), np.asarray(tag["corners"], dtype=np.float32))
+                for tag in record["tags"]
+            ]
+        return out
+
+    @property
+    def record_count(self) -> int:
+        with self._lock:
+            return len(self._raw_records)
 
     def put(self, frame: RawFrame) -> None:
         self.publisher.put(frame.payload, attachment=frame.attachment)
@@ -457,37 +471,69 @@ class _Service:
         self.service.close()
 
 
+@dataclass(slots=True)
+class Lockstep:
+    """End-to-end latencies of one service and what its records say (recall, FP)."""
+
+    latencies_ms: list[float]
+    tally: Tally
+
+
 def lockstep(
-    detector: Detector,
-    frames: Sequence[RawFrame],
+    detectors: dict[str, Detector],
     scenes: Sequence[Scene],
     progress: Progress | None,
     label: str,
-) -> tuple[list[float], Tally]:
-    """End-to-end latencies (frame put -> ``tag`` received), one frame at a time, and the
-    recall / false positives of what the service published in its records."""
-    settings = _settings(detector)
-    latencies: list[float] = []
-    tally = Tally()
+) -> tuple[dict[str, Lockstep], list[float]]:
+    """End-to-end latency (frame put -> ``tag`` received) of one service per detector, one
+    frame at a time, and the baseline's bare detection time on the same frame.
+
+    The services run side by side (each on its own keys) and every frame goes to each in
+    turn, right after the bare baseline has run on it (the order rotates per frame): a
+    slower or busier moment of the machine affects all of them alike. Recall and false
+    positives come from the ``perception/tags`` records each service published.
+    """
+    frames = raw_frames(scenes)
     height, width = scenes[0].image.shape[:2]
+    latencies: dict[str, list[float]] = {name: [] for name in detectors}
+    bare: list[float] = []
+    baseline = Baseline()
     with Loopback() as peers:
-        svc = _Service(peers, detector, settings)
+        services: dict[str, _Service] = {}
         try:
-            svc.warm_up(width, height)
-            for frame in frames:
-                start = time.perf_counter()
-                svc.put(frame)
-                latencies.append((svc.tags.get(timeout=10.0) - start) * 1e3)
+            for name, detector in detectors.items():
+                services[name] = _Service(peers, detector, _settings(detector, f"bench/{name}"))
+            for svc in services.values():
+                svc.warm_up(width, height)
+            steps: list[str] = ["", *services]
+            for index, frame in enumerate(frames):
+                shift = index % len(steps)
+                for step in steps[shift:] + steps[:shift]:
+                    if not step:
+                        bare.append(baseline.run(scenes[index].image)[1])
+                        continue
+                    svc = services[step]
+                    start = time.perf_counter()
+                    svc.put(frame)
+                    latencies[step].append((svc.tags.get(timeout=10.0) - start) * 1e3)
                 _tick(progress, label)
             deadline = time.monotonic() + 5.0
-            while len(svc.records) < len(frames) + 1 and time.monotonic() < deadline:
+            while time.monotonic() < deadline and any(
+                svc.record_count < len(frames) + 1 for svc in services.values()
+            ):
                 time.sleep(0.01)
         finally:
-            svc.close()
-    for seq, scene in enumerate(scenes):
-        tally.add(scene, svc.records.get(seq, []), None)
-    tally.times_ms = latencies
-    return latencies, tally
+            for svc in services.values():
+                svc.close()
+    out: dict[str, Lockstep] = {}
+    for name, svc in services.items():
+        records = svc.decoded_records()
+        tally = Tally()
+        for seq, scene in enumerate(scenes):
+            tally.add(scene, records.get(seq, []), None)
+        tally.times_ms = latencies[name]
+        out[name] = Lockstep(latencies[name], tally)
+    return out, bare
 
 
 def throughput(
@@ -542,9 +588,20 @@ def throughput(
     }
 
 
-def _settings(detector: Detector) -> Settings:
+def _settings(detector: Detector, prefix: str = "") -> Settings:
+    """Service settings for ``detector``; with ``prefix``, on keys of its own."""
     name = "fast" if isinstance(detector, FastDetector) else "opencv"
-    return Settings(detector=name, stats_interval_s=0.0)
+    if not prefix:
+        return Settings(detector=name, stats_interval_s=0.0)
+    return Settings(
+        detector=name,
+        stats_interval_s=0.0,
+        input_key=f"{prefix}/image",
+        tag_key=f"{prefix}/tag",
+        record_key=f"{prefix}/tags",
+        status_key=f"{prefix}/status",
+        liveliness_key=f"{prefix}/alive",
+    )
 
 
 def _frame_size(frame: RawFrame) -> tuple[int, int]:
@@ -612,13 +669,13 @@ def _levers() -> list[tuple[str, Callable[[], Any]]]:
             lambda: Baseline(_params(**one, **read), grey=True),
         ),
         ("+ refined corners, model-fit check (no tracking)", fast(track=False)),
-        ("+ tracking, full scan every 4 frames (project)", fast()),
-        ("tracking, full scan every 2 frames", fast(full_scan_period=2)),
-        ("tracking, full scan every 8 frames", fast(full_scan_period=8)),
+        (f"+ tracking, full scan every {base.full_scan_period} frames (project)", fast()),
+        ("tracking, full scan every 4 frames", fast(full_scan_period=4)),
+        ("tracking, full scan every 16 frames", fast(full_scan_period=16)),
         ("no corner refinement (tracking on)", fast(refine=False)),
         ("no model-fit check (tracking on)", fast(verify=False)),
-        ("two-strip scan on 2 threads (no tracking)", fast(track=False, scan_threads=2)),
-        ("two-strip scan on 2 threads + tracking", fast(scan_threads=2)),
+        ("scan shared by 2 threads (no tracking)", fast(track=False, scan_threads=2)),
+        ("scan shared by 2 threads + tracking", fast(scan_threads=2)),
     ]
 
 
@@ -653,7 +710,7 @@ def run_bench(plan: Plan, *, with_e2e: bool = True, with_levers: bool = False) -
     """Measure everything; returns the JSON-ready report (see the module doc)."""
     work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
     if with_e2e:
-        work += 2 * (plan.frames + plan.video_frames)
+        work += plan.frames + plan.video_frames
         work += 2 * round(THROUGHPUT_HZ * plan.throughput_s) + 30
     if with_levers:
         work += 20 * (plan.frames + plan.video_frames)
@@ -701,7 +758,7 @@ def _measure(
             "fast_stats": _stats(project.detector),
         }
     if with_e2e:
-        report["e2e"] = _end_to_end(sets, plan, progress)
+        report["e2e"] = _end_to_end(sets, progress)
         report["throughput"] = _throughput(plan, progress)
     if with_levers:
         report["levers"] = levers(sets, progress)
@@ -722,27 +779,31 @@ def _stats(detector: FastDetector) -> dict[str, int]:
     }
 
 
-def _end_to_end(sets: Sequence[FrameSet], plan: Plan, progress: Progress) -> dict[str, Any]:
+def _end_to_end(sets: Sequence[FrameSet], progress: Progress) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for frame_set in sets:
         if frame_set.name not in (VIDEO_RESOLUTION, "video"):
             continue
-        frames = raw_frames(frame_set.scenes)
+        detectors = {"opencv": _opencv_detector(), "fast": _fast_detector()}
+        runs, bare = lockstep(detectors, frame_set.scenes, progress, f"e2e {frame_set.name}")
         entry: dict[str, Any] = {}
-        for name, make in (("opencv", _opencv_detector), ("fast", _fast_detector)):
-            detector = make()
-            latencies, tally = lockstep(
-                detector, frames, frame_set.scenes, progress, f"e2e {frame_set.name} {name}"
-            )
-            summary = tally.summary()
-            times = np.asarray(latencies)
+        for name, run in runs.items():
+            summary = run.tally.summary()
+            times = np.asarray(run.latencies_ms)
             summary["median_ms"] = _r(np.median(times))
             summary["mean_ms"] = _r(times.mean())
             summary["p99_ms"] = _r(np.percentile(times, 99))
             entry[name] = summary
-            if isinstance(detector, FastDetector):
-                entry["fast_stats"] = _stats(detector)
-                detector.close()
+        bare_times = np.asarray(bare)
+        entry["baseline_detection"] = {
+            "median_ms": _r(np.median(bare_times)),
+            "mean_ms": _r(bare_times.mean()),
+            "p99_ms": _r(np.percentile(bare_times, 99)),
+        }
+        fast = detectors["fast"]
+        if isinstance(fast, FastDetector):
+            entry["fast_stats"] = _stats(fast)
+            fast.close()
         out[frame_set.name] = entry
     return out
 
@@ -804,13 +865,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
     indep_base = sets[VIDEO_RESOLUTION]["baseline"]
     if e2e is not None:
         fast = e2e["video"]["fast"]
-        ratio = fast["mean_ms"] / video_base["mean_ms"]
+        bare = e2e["video"]["baseline_detection"]
+        ratio = fast["mean_ms"] / bare["mean_ms"]
         goal(
             "video HD720: mean e2e / baseline mean detection",
             ratio,
             f"<= {VIDEO_E2E_RATIO}",
             ratio <= VIDEO_E2E_RATIO,
-            f"{fast['mean_ms']:.2f} ms vs {video_base['mean_ms']:.2f} ms",
+            f"{fast['mean_ms']:.2f} ms vs {bare['mean_ms']:.2f} ms",
         )
         goal(
             "video HD720: recall (service records) >= baseline",
@@ -819,13 +881,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             fast["recall"] >= video_base["recall"],
         )
         fast = e2e[VIDEO_RESOLUTION]["fast"]
-        ratio = fast["median_ms"] / indep_base["median_ms"]
+        bare = e2e[VIDEO_RESOLUTION]["baseline_detection"]
+        ratio = fast["median_ms"] / bare["median_ms"]
         goal(
             "independent HD720: median e2e / baseline median detection",
             ratio,
             f"<= {INDEPENDENT_E2E_RATIO}",
             ratio <= INDEPENDENT_E2E_RATIO,
-            f"{fast['median_ms']:.2f} ms vs {indep_base['median_ms']:.2f} ms",
+            f"{fast['median_ms']:.2f} ms vs {bare['median_ms']:.2f} ms",
         )
         goal(
             "independent HD720: recall (service records) >= baseline",
@@ -867,13 +930,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
         )
     if e2e is not None:
         opencv = e2e[VIDEO_RESOLUTION]["opencv"]
-        ratio = opencv["median_ms"] / indep_base["median_ms"]
+        bare = e2e[VIDEO_RESOLUTION]["baseline_detection"]
+        ratio = opencv["median_ms"] / bare["median_ms"]
         goal(
             "issue 2: service (opencv) median e2e / bare default detector",
             ratio,
             f"<= {ISSUE2_RATIO}",
             ratio <= ISSUE2_RATIO,
-            f"{opencv['median_ms']:.2f} ms vs {indep_base['median_ms']:.2f} ms",
+            f"{opencv['median_ms']:.2f} ms vs {bare['median_ms']:.2f} ms",
         )
     return rows
 
@@ -934,6 +998,18 @@ def format_report(report: dict[str, Any]) -> str:
     if "e2e" in report:
         rows = []
         for name, entry in report["e2e"].items():
+            bare = entry["baseline_detection"]
+            rows.append(
+                [
+                    name,
+                    "bare baseline",
+                    _fmt(bare["median_ms"]),
+                    _fmt(bare["mean_ms"]),
+                    _fmt(bare["p99_ms"]),
+                    "-",
+                    "-",
+                ]
+            )
             for who in ("opencv", "fast"):
                 s = entry[who]
                 rows.append(
@@ -948,7 +1024,8 @@ def format_report(report: dict[str, Any]) -> str:
                     ]
                 )
         parts.append(
-            "End to end through the service (put -> tag, lockstep, loopback Zenoh peers)\n"
+            "End to end through the service (put -> tag, lockstep, loopback Zenoh peers; the bare"
+            " baseline ran on each frame in turn with the services)\n"
             + _table(["frames", "detector", "median ms", "mean ms", "p99 ms", "recall", "FP"], rows)
         )
     if "throughput" in report:
