@@ -555,7 +555,7 @@ def throughput(
         svc = _Service(peers, detector, settings)
         try:
             svc.warm_up(width, height)
-            before = svc.service.stats.snapshot()
+            before = _quiet(svc)  # warm-up frames still in flight must not count
             start = time.perf_counter()
             late = 0
             for i in range(count):
@@ -608,6 +608,23 @@ def _settings(detector: Detector, prefix: str = "") -> Settings:
 def _frame_size(frame: RawFrame) -> tuple[int, int]:
     meta = msgpack.unpackb(frame.attachment, raw=False)
     return int(meta["height"]), int(meta["width"])
+
+
+def _quiet(svc: _Service, timeout: float = 5.0) -> Any:
+    """Service stats once nothing has arrived for 0.3 s and everything received is handled."""
+    deadline = time.monotonic() + timeout
+    last = svc.service.stats.snapshot()
+    still_since = time.monotonic()
+    while time.monotonic() < deadline:
+        time.sleep(0.05)
+        stats = svc.service.stats.snapshot()
+        handled = stats.processed + stats.dropped + sum(stats.rejected.values())
+        if stats.received != last.received or handled < stats.received:
+            still_since = time.monotonic()
+        elif time.monotonic() - still_since >= 0.3:
+            return stats
+        last = stats
+    return last
 
 
 def _settle(svc: _Service, expected_received: int, timeout: float = 5.0) -> Any:
