@@ -44,6 +44,9 @@ from zenoh_perception.service import PerceptionService
 from zenoh_perception.settings import Settings
 
 FRAMES = "zed/left/image"
+# Test cameras block rather than let Zenoh drop a large frame when the machine is busy (with
+# the default DROP, a frame that cannot be queued within 1 ms is lost).
+_BLOCK = zenoh.CongestionControl.BLOCK
 _RECONNECT_TIMEOUT = 30.0  # the client retries every 1 s, then 2 s, then 4 s
 
 
@@ -97,7 +100,7 @@ def _answered(session: zenoh.Session, tag_id: int, seq: int) -> dict[str, Any]:
     frame = _frame(tag_id)
     records = Collector(session, "perception/tags")
     tags = Collector(session, "tag")
-    publisher = session.declare_publisher(FRAMES)
+    publisher = session.declare_publisher(FRAMES, congestion_control=_BLOCK)
     try:
         wait_for_subscriber(publisher, timeout=_RECONNECT_TIMEOUT)
         deadline = time.monotonic() + _RECONNECT_TIMEOUT
@@ -153,7 +156,7 @@ def test_camera_leaving_and_coming_back_is_answered_again(router: Router) -> Non
         # First camera: a burst, then it vanishes in the middle of it (session closed).
         frame = _frame(6)
         with open_session(mode="client", connect=[router.endpoint]) as camera:
-            publisher = camera.declare_publisher(FRAMES)
+            publisher = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
             wait_for_subscriber(publisher)
             for seq in range(30):
                 publisher.put(frame.payload, attachment=raw_attachment(320, 240, seq=seq))
@@ -189,7 +192,7 @@ def test_a_detector_error_on_one_frame_is_counted_and_the_worker_goes_on(
     service_session, camera = peers
     settings = Settings(stats_interval_s=0.0)
     with PerceptionService(service_session, settings, detector=_FailingOn(17)) as service:
-        publisher = camera.declare_publisher(FRAMES)
+        publisher = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
         wait_for_subscriber(publisher)
         publisher.put(b"\x80" * 17 * 5, attachment=raw_attachment(17, 5, seq=1, encoding="mono8"))
         wait_until(

@@ -34,6 +34,7 @@ from zenoh_perception.records import decode_record
 from zenoh_perception.settings import Settings
 
 FRAMES = "zed/left/image"
+_BLOCK = zenoh.CongestionControl.BLOCK
 
 # One malformed payload per rejection reason: (payload, attachment).
 _BAD: dict[str, tuple[bytes, bytes | None]] = {
@@ -63,7 +64,8 @@ class Camera:
 
     def __init__(self, session: zenoh.Session) -> None:
         self.session = session
-        self.publisher = session.declare_publisher(FRAMES)
+        # BLOCK: a large frame is never dropped by Zenoh when the machine is busy.
+        self.publisher = session.declare_publisher(FRAMES, congestion_control=_BLOCK)
         self.records = Collector(session, "perception/tags")
         wait_for_subscriber(self.publisher)
 
@@ -71,7 +73,13 @@ class Camera:
         frame = marker_frame(320, 240, tag_id, side=96)
         self.publisher.put(frame.payload, attachment=raw_attachment(320, 240, seq=seq))
         while True:
-            record = decode_record(self.records.get(timeout=10.0).payload)
+            try:
+                record = decode_record(self.records.get(timeout=10.0).payload)
+            except queue.Empty:
+                status = query_status(self.session, timeout=2.0)
+                pytest.fail(
+                    f"frame {seq} not answered; service frames: {status and status['frames']}"
+                )
             if record["seq"] == seq:
                 return record
 
