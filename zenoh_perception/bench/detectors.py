@@ -1189,7 +1189,7 @@ def plot(report: dict[str, Any], path: Path) -> None:
         1,
         cv2.LINE_AA,
     )
-    cv2.putText(canvas, "ms", (20, top + plot_h // 2), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(canvas, "ms", (left - 60, top - 12), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
     for k, (who, colour, _, _) in enumerate(series):
         y = top + 25 + 25 * k
         cv2.line(canvas, (left + 20, y), (left + 60, y), colour, 2, cv2.LINE_AA)
