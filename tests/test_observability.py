@@ -74,7 +74,7 @@ class Camera:
         self.publisher.put(frame.payload, attachment=raw_attachment(320, 240, seq=seq))
         while True:
             try:
-                record = decode_record(self.records.get(timeout=10.0).payload)
+                record = decode_record(self.records.get(timeout=30.0).payload)
             except queue.Empty:
                 status = query_status(self.session, timeout=2.0)
                 pytest.fail(
