@@ -161,6 +161,18 @@ def test_a_tag_that_disappears_is_not_reported_on_the_next_frame() -> None:
     assert seen == [[1, 2]] * 3 + [[1]] * 3
 
 
+def test_a_tag_replaced_by_another_at_the_same_place_is_reported_at_once() -> None:
+    # same border, same place: only the code changes (the thumbnail sees no scene cut)
+    a = MarkerPose(1, 0.15, (-0.1, 0.0, 1.2))
+    b = MarkerPose(2, 0.15, (-0.1, 0.0, 1.2))
+    other = MarkerPose(3, 0.15, (0.35, 0.1, 1.5))
+    frames = _static_frames([[a, other]] * 3 + [[b, other]] * 3)
+    detector = FastDetector()
+    seen = [sorted(d.tag_id for d in detector.detect(frame)) for frame in frames]
+    assert seen == [[1, 3]] * 3 + [[2, 3]] * 3
+    assert detector.stats.scene_cuts == 0
+
+
 def test_tracking_follows_a_drive_without_losing_recall() -> None:
     generator = SceneGenerator(CameraModel.named("VGA"), seed=21, effects=Effects.realistic())
     frames = list(generator.drive(30, fps=30.0, n_tags=3, n_distractors=0))

@@ -65,6 +65,7 @@ from zenoh_perception.detect.refine import (
     MarkerModel,
     Refined,
     acceptance_threshold,
+    bits_match,
     fit_many,
     refine_corners,
     refine_many,
@@ -421,6 +422,7 @@ class FastDetector:
             gray, predictions, self._cells, max_iterations=2, tolerance_px=_FOLLOW_TOLERANCE_PX
         )
         to_fit: list[tuple[_Track, Refined]] = []
+        to_read: list[tuple[_Track, Refined]] = []
         search: list[_Track] = []
         for track, r in zip(self._tracks, refined, strict=True):
             track.tried = frame
@@ -430,13 +432,22 @@ class FastDetector:
             track.blur_px = r.blur_px
             side = _side(r.corners)
             recent = frame - track.verified < _REVERIFY_FRAMES
-            if (recent and abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE) or not (
-                self.config.verify
-            ):
+            if not self.config.verify:
+                self.stats.followed_direct += 1
+                track.update(r.corners, frame)
+            elif recent and abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE:
+                to_read.append((track, r))
+            else:
+                to_fit.append((track, r))
+        # between fits, the cells must still read as the track's id (another marker may
+        # have taken its place: same border, other code)
+        same = bits_match(gray, [(r.corners, t.tag_id) for t, r in to_read], self._model)
+        for (track, r), ok in zip(to_read, same, strict=True):
+            if ok:
                 self.stats.followed_direct += 1
                 track.update(r.corners, frame)
             else:
-                to_fit.append((track, r))
+                search.append(track)
         if to_fit:
             verdicts = self._passes_many(
                 gray, [(r.corners, t.tag_id) for t, r in to_fit], [r for _, r in to_fit]
