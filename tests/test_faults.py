@@ -294,3 +294,20 @@ def test_sigterm_during_an_hd2k_stream_exits_0_within_2_seconds(router: Router) 
     assert "event=signal signal=SIGTERM" in output
     assert "event=stopped" in output
     assert "Traceback" not in output
+
+
+def test_client_mode_waits_for_a_router_that_is_not_up_yet(endpoint: str) -> None:
+    """A client started before its router retries instead of dying, then serves frames."""
+    from tests.helpers import open_session, running_cli, wait_for_status
+
+    with running_cli("run", "-m", "client", "-e", endpoint, "--no-multicast-scouting") as proc:
+        # The service is up and retrying before any router listens on the endpoint.
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "event=connect_failed" in line:
+                break
+        with open_session(mode="router", listen=[endpoint]) as router:
+            status = wait_for_status(router)
+            assert status["worker_alive"] is True
+        assert proc.poll() is None
+    assert proc.returncode == 0

@@ -162,3 +162,21 @@ def test_log_gate_admits_once_per_interval_and_reports_suppressed() -> None:
     assert gate.admit("size_mismatch") == 0
     now[0] = 5.0
     assert gate.admit("bad_cdr") == 2
+
+
+# -- logs -----------------------------------------------------------------------------------
+
+
+def test_log_values_cannot_break_a_line_or_forge_a_key() -> None:
+    import logging
+
+    from zenoh_perception.logs import KeyValueFormatter, kv
+
+    line = kv(reason="bad_cdr", detail='say "hi"\nlevel=ERROR', empty="")
+    assert line == 'reason=bad_cdr detail="say \\"hi\\"\\nlevel=ERROR" empty=""'
+    record = logging.LogRecord(
+        "x", logging.WARNING, __file__, 1, "event=rejected %s", (line,), None
+    )
+    formatted = KeyValueFormatter().format(record)
+    assert "\n" not in formatted
+    assert formatted.startswith("ts=") and " level=WARNING logger=x event=rejected " in formatted

@@ -22,8 +22,7 @@ Handler = Callable[[argparse.Namespace], int]
 def _cmd_run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     conf = zenoh_config_from_args(args)
-    service.run(conf, settings, stop_on_signals())
-    return 0
+    return service.run(conf, settings, stop_on_signals())
 
 
 def _cmd_echo(args: argparse.Namespace) -> int:

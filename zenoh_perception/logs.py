@@ -12,6 +12,7 @@ import json
 import logging
 import re
 import sys
+import threading
 import time
 from typing import Final
 
@@ -46,10 +47,21 @@ class KeyValueFormatter(logging.Formatter):
         return line.replace("\n", "\\n")
 
 
+def _log_thread_crash(args: threading.ExceptHookArgs) -> None:
+    name = args.thread.name if args.thread is not None else "unknown"
+    logging.getLogger("zenoh_perception").error(
+        "event=thread_crashed %s",
+        kv(thread=name, error=args.exc_type.__name__),
+        exc_info=args.exc_value,
+    )
+
+
 def configure_logging(level: str = "INFO") -> None:
-    """Send key=value lines at ``level`` to stderr (replacing earlier handlers)."""
+    """Send key=value lines at ``level`` to stderr (replacing earlier handlers); a crashing
+    thread is logged as ``event=thread_crashed`` instead of a raw traceback."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(KeyValueFormatter())
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level)
+    threading.excepthook = _log_thread_crash

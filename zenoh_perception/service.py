@@ -63,6 +63,8 @@ class PerceptionService:
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
         self._stop = threading.Event()
+        #: Set when the worker thread died unexpectedly (the service then answers nothing).
+        self.failed = threading.Event()
         self._debug_watched = threading.Event()
         self._last_debug = 0.0
         self._debug_images = 0
@@ -183,10 +185,17 @@ class PerceptionService:
     # -- worker ------------------------------------------------------------------------------
 
     def _work(self) -> None:
-        while not self._stop.is_set():
-            arrival = self._mailbox.take(_POLL_S)
-            if arrival is not None:
-                self._handle(arrival)
+        try:
+            while not self._stop.is_set():
+                arrival = self._mailbox.take(_POLL_S)
+                if arrival is not None:
+                    self._handle(arrival)
+        finally:
+            if not self._stop.is_set():
+                # Anything unforeseen: say so, and let run() exit non-zero rather than keep
+                # a liveliness token that claims a service that answers nothing.
+                log.error("event=worker_died")
+                self.failed.set()
 
     def _handle(self, arrival: _Arrival) -> None:
         started = time.monotonic_ns()
@@ -273,6 +282,7 @@ class PerceptionService:
             "service": "zenoh-perception",
             "version": __version__,
             "zid": str(self._session.zid()),
+            "worker_alive": not self.failed.is_set(),
             **snapshot,
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
@@ -302,7 +312,32 @@ class PerceptionService:
             )
 
 
-def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> None:
-    """Open a session with ``conf``, serve until ``stop`` is set, then close everything."""
-    with zenoh.open(conf) as session, PerceptionService(session, settings):
-        stop.wait()
+def open_session(
+    conf: zenoh.Config, stop: threading.Event, retry_s: float = 1.0
+) -> zenoh.Session | None:
+    """``zenoh.open(conf)``; in client mode retried every ``retry_s`` until the router is up.
+
+    Returns None when ``stop`` is set while waiting. Peer and router modes fail at once.
+    """
+    client = json.loads(conf.get_json("mode") or "null") == "client"
+    while not stop.is_set():
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as err:
+            if not client:
+                raise
+            log.warning("event=connect_failed %s", kv(retry_s=retry_s, error=err))
+            stop.wait(retry_s)
+    return None
+
+
+def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
+    """Serve until ``stop`` is set (exit code 0) or the worker dies (exit code 1)."""
+    session = open_session(conf, stop)
+    if session is None:
+        return 0
+    with session, PerceptionService(session, settings) as service:
+        while not stop.wait(0.5):
+            if service.failed.is_set():
+                return 1
+    return 0
