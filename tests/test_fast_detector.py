@@ -295,3 +295,18 @@ def test_bad_configuration_and_input_are_refused() -> None:
         FastDetector("DICT_NOPE")
     with pytest.raises(ValueError, match="grey"):
         FastDetector().detect(np.zeros((10, 10, 3), np.uint8))
+
+
+def test_a_tag_appearing_on_a_still_scene_is_reported_on_that_frame() -> None:
+    """No scene cut (most of the frame is unchanged), yet the new tags are found at once."""
+    def square(x0: float, y0: float, side: float) -> np.ndarray:
+        return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+    detector = FastDetector("DICT_4X4_50")
+    first = render_markers(1280, 720, [(1, square(100, 100, 120))])
+    later = render_markers(
+        1280, 720, [(1, square(100, 100, 120)), (9, square(900, 80, 90)), (4, square(300, 420, 70))]
+    )
+    for image, expected in ((first, {1}), (first, {1}), (later, {1, 4, 9})):
+        gray = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
+        assert {d.tag_id for d in detector.detect(gray)} == expected
