@@ -83,8 +83,12 @@ class OpenCvDetector:
         return detections_from_opencv(corners, ids)
 
 
-def make_detector(name: str, dictionary: str) -> Detector:
+def make_detector(
+    name: str, dictionary: str, *, full_scan_period: int = 8, scan_threads: int = 1
+) -> Detector:
     """The detector called ``name`` ('fast' or 'opencv') for ``dictionary``.
+
+    ``full_scan_period`` and ``scan_threads`` tune the fast detector (see fast_detector.py).
 
     Raises:
         SettingsError: unknown detector or dictionary.
@@ -94,8 +98,12 @@ def make_detector(name: str, dictionary: str) -> Detector:
         return OpenCvDetector(dictionary)
     if name == "fast":
         # fast_detector builds on this module (Detection, aruco_dictionary): import it late
-        from zenoh_perception.fast_detector import FastDetector  # noqa: PLC0415
+        from zenoh_perception.fast_detector import (  # noqa: PLC0415
+            FastDetector,
+            FastDetectorConfig,
+        )
 
-        return FastDetector(dictionary)
+        config = FastDetectorConfig(full_scan_period=full_scan_period, scan_threads=scan_threads)
+        return FastDetector(dictionary, config)
     msg = f"unknown detector {name!r}; choose 'fast' or 'opencv'"
     raise SettingsError(msg)

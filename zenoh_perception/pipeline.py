@@ -74,7 +74,12 @@ class Pipeline:
         self.detector = (
             detector
             if detector is not None
-            else make_detector(settings.detector, settings.dictionary)
+            else make_detector(
+                settings.detector,
+                settings.dictionary,
+                full_scan_period=settings.full_scan_period,
+                scan_threads=settings.scan_threads,
+            )
         )
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)

@@ -59,6 +59,13 @@ class Settings:
     detector: str = field(
         default="fast", metadata=_doc("'fast' (tuned, tracking) or 'opencv' (OpenCV defaults)")
     )
+    full_scan_period: int = field(
+        default=8,
+        metadata=_doc("fast detector: full scan at least every N frames (new tags within N)"),
+    )
+    scan_threads: int = field(
+        default=1, metadata=_doc("fast detector: threads sharing a full scan, 1 or 2")
+    )
     opencv_threads: int = field(
         default=0, metadata=_doc("OpenCV worker threads; 0 = OpenCV's default")
     )
@@ -150,6 +157,12 @@ def _validate(settings: Settings) -> None:
         if not math.isfinite(value) or value < 0:
             msg = f"{name} must be zero or positive, not {value!r}"
             raise SettingsError(msg)
+    if settings.full_scan_period < 1:
+        msg = f"full_scan_period must be at least 1, not {settings.full_scan_period}"
+        raise SettingsError(msg)
+    if settings.scan_threads not in (1, 2):
+        msg = f"scan_threads must be 1 or 2, not {settings.scan_threads}"
+        raise SettingsError(msg)
     if not 1 <= settings.debug_jpeg_quality <= 100:
         msg = f"debug_jpeg_quality must be 1..100, not {settings.debug_jpeg_quality}"
         raise SettingsError(msg)

@@ -960,15 +960,19 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             f"dropped {fast['dropped']}, {fast['processed_hz']:.1f} Hz",
         )
     if e2e is not None:
+        # Issue 2 measures the service as shipped (default settings: detector "fast"); the
+        # note gives the same ratio with detector = "opencv" for comparison.
+        default = e2e[VIDEO_RESOLUTION]["fast"]
         opencv = e2e[VIDEO_RESOLUTION]["opencv"]
         bare = e2e[VIDEO_RESOLUTION]["baseline_detection"]
-        ratio = opencv["median_ms"] / bare["median_ms"]
+        ratio = default["median_ms"] / bare["median_ms"]
         goal(
-            "issue 2: service (opencv) median e2e / bare default detector",
+            "issue 2: service (default settings) median e2e / bare default detector",
             ratio,
             f"<= {ISSUE2_RATIO}",
             ratio <= ISSUE2_RATIO,
-            f"{opencv['median_ms']:.2f} ms vs {bare['median_ms']:.2f} ms",
+            f"{default['median_ms']:.2f} ms vs {bare['median_ms']:.2f} ms; "
+            f"detector=opencv: {opencv['median_ms'] / bare['median_ms']:.2f}x",
         )
     return rows
 
