@@ -299,6 +299,7 @@ def test_bad_configuration_and_input_are_refused() -> None:
 
 def test_a_tag_appearing_on_a_still_scene_is_reported_on_that_frame() -> None:
     """No scene cut (most of the frame is unchanged), yet the new tags are found at once."""
+
     def square(x0: float, y0: float, side: float) -> np.ndarray:
         return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
 
