@@ -25,7 +25,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 from tests.helpers import Collector, open_session, running_cli, zenoh_config
 from zenoh_perception.frames import decode_attachment, decode_image_cdr, decode_raw_frame
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE
+from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE, header
 from zenoh_perception.records import decode_record
 from zenoh_perception.replay import (
     Pacer,
@@ -85,12 +85,7 @@ def _image_cdr(pixels: Pixels, encoding: str, stamp_ns: int, frame_id: str) -> b
     height, width = pixels.shape[:2]
     channels = 1 if pixels.ndim == 2 else pixels.shape[2]
     msg = types[IMAGE_TYPE](
-        header=types["std_msgs/msg/Header"](
-            stamp=types["builtin_interfaces/msg/Time"](
-                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-            ),
-            frame_id=frame_id,
-        ),
+        header=header(stamp_ns, frame_id),
         height=height,
         width=width,
         encoding=encoding,

@@ -25,6 +25,7 @@ from zenoh_perception.messages import (
     IMAGE_TYPE,
     STARTER_PROJECT_TAG_MSG,
     TYPESTORE,
+    header,
     make_typestore,
     tag_type_name,
 )
@@ -202,12 +203,7 @@ def _rosbags_image_cdr(
     data[:, : row.shape[1]] = row
     types = TYPESTORE.types
     msg = types[IMAGE_TYPE](
-        header=types["std_msgs/msg/Header"](
-            stamp=types["builtin_interfaces/msg/Time"](
-                sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
-            ),
-            frame_id=frame_id,
-        ),
+        header=header(stamp_ns, frame_id),
         height=height,
         width=width,
         encoding=encoding,

@@ -206,10 +206,11 @@ def test_truth_pose_reprojects_to_truth_corners(
     ok, rvec, tvec = cv2.solvePnP(
         square_corners(0.2), truth.corners, cam.matrix, None, flags=cv2.SOLVEPNP_SQPNP
     )
-    assert ok and np.allclose(tvec.reshape(3), truth.tvec, atol=1e-6)
+    # (solver precision is about 1e-6: a wrong convention would be off by order 1)
+    assert ok and np.allclose(tvec.reshape(3), truth.tvec, atol=1e-5)
     rotation, _ = cv2.Rodrigues(rvec)
     truth_rotation, _ = cv2.Rodrigues(truth.rvec)
-    assert np.allclose(rotation, truth_rotation, atol=1e-6)
+    assert np.allclose(rotation, truth_rotation, atol=1e-5)
     # the centre is where the diagonals cross
     a, c = truth.corners[0], truth.corners[2]
     b, d = truth.corners[1], truth.corners[3]

@@ -517,14 +517,7 @@ class FastDetector:
                     track.update(refined.corners, frame)
                     track.verified, track.verified_side = frame, side
                     return
-        found = self._search_roi(gray, track, predicted)
-        if found is not None:
-            corners, track.blur_px = found
-            self.stats.followed_roi += 1
-            track.update(corners, frame)
-            track.verified, track.verified_side = frame, _side(corners)
-            return
-        self.stats.lost += 1
+        self._search(gray, track, frame)
 
     def _search_roi(self, gray: Gray, track: _Track, predicted: Quad) -> tuple[Quad, float] | None:
         side = _side(predicted)
