@@ -189,3 +189,15 @@ def wait_until(
             msg = f"{what} not reached within {timeout} s"
             raise TimeoutError(msg)
         pause.wait(0.01)
+
+
+def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """Run the real CLI to completion and capture its output (never raises on exit codes)."""
+    return subprocess.run(
+        cli_command(*args),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )

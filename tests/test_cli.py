@@ -15,6 +15,7 @@ from tests.helpers import (
     Collector,
     cli_command,
     open_session,
+    run_cli,
     running_cli,
     wait_for_status,
     wait_for_subscriber,
@@ -126,26 +127,16 @@ def test_echo_prints_tags_and_status_reports(endpoint: str) -> None:
         assert all(line["tag_id"] == 2 for line in tag_lines)
         assert all(line["selected"]["tag_id"] == 2 for line in record_lines)
 
-        status = subprocess.run(
-            cli_command("status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "5"),
-            cwd=REPO,
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
+        status = run_cli(
+            "status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "5", timeout=60
         )
         assert status.returncode == 0, status.stderr
         assert json.loads(status.stdout)["service"] == "zenoh-perception"
 
 
 def test_status_exits_1_when_no_service_answers(endpoint: str) -> None:
-    result = subprocess.run(
-        cli_command("status", "-l", endpoint, "--no-multicast-scouting", "--timeout", "0.5"),
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
+    result = run_cli(
+        "status", "-l", endpoint, "--no-multicast-scouting", "--timeout", "0.5", timeout=60
     )
     assert result.returncode == 1
     assert "no perception service answered" in result.stderr
@@ -166,35 +157,21 @@ def test_sigterm_exits_0_within_2_seconds(endpoint: str) -> None:
 
 
 def test_invalid_settings_exit_2_with_a_message() -> None:
-    result = subprocess.run(
-        cli_command("run", "--policy", "nearest", "--no-multicast-scouting"),
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    result = run_cli("run", "--policy", "nearest", "--no-multicast-scouting", timeout=60)
     assert result.returncode == 2
     assert "policy must be one of" in result.stderr
 
 
 def test_demo_runs_camera_service_and_echo_in_one_command() -> None:
-    result = subprocess.run(
-        cli_command(
-            "demo",
-            "--no-multicast-scouting",
-            "--limit",
-            "12",
-            "--fps",
-            "30",
-            "--stats-interval-s",
-            "0",
-        ),
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
+    result = run_cli(
+        "demo",
+        "--no-multicast-scouting",
+        "--limit",
+        "12",
+        "--fps",
+        "30",
+        "--stats-interval-s",
+        "0",
     )
     assert result.returncode == 0, result.stderr
     lines = [line for line in result.stdout.splitlines() if line.startswith("[perception/tags]")]
@@ -209,25 +186,18 @@ def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:
     ):
         wait_for_status(probe)
         records = Collector(probe, "perception/tags")
-        camera = subprocess.run(
-            cli_command(
-                "demo",
-                "--camera-only",
-                "--format",
-                "cdr",
-                "-e",
-                endpoint,
-                "--no-multicast-scouting",
-                "--limit",
-                "20",
-                "--fps",
-                "20",
-            ),
-            cwd=REPO,
-            capture_output=True,
-            text=True,
-            timeout=120,
-            check=False,
+        camera = run_cli(
+            "demo",
+            "--camera-only",
+            "--format",
+            "cdr",
+            "-e",
+            endpoint,
+            "--no-multicast-scouting",
+            "--limit",
+            "20",
+            "--fps",
+            "20",
         )
         assert camera.returncode == 0, camera.stderr
         record = decode_record(records.get(timeout=20).payload)
