@@ -24,8 +24,13 @@ import zenoh
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from tests.helpers import Collector, open_session, running_cli, zenoh_config
-from zenoh_perception.frames import decode_attachment, decode_image_cdr, decode_raw_frame
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE, header
+from zenoh_perception.frames import (
+    decode_attachment,
+    decode_image_cdr,
+    decode_raw_frame,
+    encode_image_cdr,
+)
+from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE
 from zenoh_perception.records import decode_record
 from zenoh_perception.replay import (
     Pacer,
@@ -80,20 +85,9 @@ def _bgr(bgra: Pixels) -> Pixels:
 
 
 def _image_cdr(pixels: Pixels, encoding: str, stamp_ns: int, frame_id: str) -> bytes:
-    """sensor_msgs/msg/Image CDR serialised by rosbags, as a ROS 2 camera driver sends it."""
-    types = TYPESTORE.types
-    height, width = pixels.shape[:2]
-    channels = 1 if pixels.ndim == 2 else pixels.shape[2]
-    msg = types[IMAGE_TYPE](
-        header=header(stamp_ns, frame_id),
-        height=height,
-        width=width,
-        encoding=encoding,
-        is_bigendian=0,
-        step=width * channels,
-        data=np.ascontiguousarray(pixels).reshape(-1),
-    )
-    return bytes(TYPESTORE.serialize_cdr(msg, IMAGE_TYPE))
+    """sensor_msgs/msg/Image CDR as a ROS 2 camera driver sends it (byte-identical to rosbags'
+    own serialisation: tests/test_ros_interop.py checks that)."""
+    return bytes(encode_image_cdr(pixels, encoding, stamp_ns=stamp_ns, frame_id=frame_id))
 
 
 def _write_bag(
