@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import cv2
 
-from zenoh_perception.detection import Detection, Detector, make_detector
+from zenoh_perception.detect.colour import ChromaCheck
+from zenoh_perception.detection import Detection, Detector, aruco_dictionary, make_detector
 from zenoh_perception.frames import Frame, to_gray
 from zenoh_perception.geometry import (
     closeness_from_area,
@@ -83,12 +84,20 @@ class Pipeline:
         )
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)
+        self._chroma = (
+            ChromaCheck(aruco_dictionary(settings.dictionary))
+            if settings.max_tag_chroma > 0
+            else None
+        )
 
     def process(self, frame: Frame) -> Analysis:
         start = time.perf_counter()
         gray = to_gray(frame)
         converted = time.perf_counter()
         detections = self.detector.detect(gray)
+        if self._chroma is not None and detections and frame.pixels.ndim == 3:
+            # tags are black on white: coloured look-alikes (signs, icons) go here
+            detections = self._chroma.keep(frame.pixels, detections, self.settings.max_tag_chroma)
         detected = time.perf_counter()
         width, height = frame.width, frame.height
         tags = tuple(observe(d, width, height, self.settings, self.intrinsics) for d in detections)

@@ -69,6 +69,10 @@ class Settings:
     opencv_threads: int = field(
         default=0, metadata=_doc("OpenCV worker threads; 0 = OpenCV's default")
     )
+    max_tag_chroma: float = field(
+        default=0.2,
+        metadata=_doc("colour frames: drop tags more colourful than this; 0 = off"),
+    )
     # Selection and closeness
     policy: str = field(default="closest", metadata=_doc("tag selection: closest | center"))
     metric: str = field(default="area", metadata=_doc("closeness metric: area | distance"))
@@ -138,6 +142,7 @@ def _validate(settings: Settings) -> None:
     aruco_dictionary(settings.dictionary)
     positive = ("max_range_m", "debug_image_max_hz")
     non_negative = (
+        "max_tag_chroma",
         "tag_size_m",
         "camera_fx",
         "camera_fy",

@@ -2,6 +2,7 @@
 
 - :mod:`.refine`: sub-pixel corner refinement from the marker's outer border edges, and the
   photometric model fit that tells real markers from look-alikes.
+- :mod:`.colour`: the colour check that drops coloured look-alikes (tags are black on white).
 """
 
 from __future__ import annotations

@@ -1,0 +1,126 @@
+"""The colour check: black-on-white tags pass, coloured look-alikes that decode do not."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
+from zenoh_perception.detection import Detection, aruco_dictionary
+from zenoh_perception.frames import ENCODINGS, Frame
+from zenoh_perception.pipeline import Pipeline
+from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
+from zenoh_perception.settings import Settings
+
+DICT = aruco_dictionary("DICT_4X4_50")
+CELL = 12  # pixels per cell of the drawn tags
+SIDE = 6 * CELL
+
+
+def _tag_on_canvas(
+    tag_id: int,
+    white: tuple[int, int, int],
+    black: tuple[int, int, int],
+    background: tuple[int, int, int] = (128, 128, 128),
+    quiet_zone: bool = True,
+) -> tuple[npt.NDArray[np.uint8], Detection]:
+    """A 200x200 BGRA canvas with tag ``tag_id`` drawn in the given colours at (64, 64)."""
+    cells = cv2.aruco.generateImageMarker(DICT, tag_id, 6, borderBits=1) > 127
+    big = np.kron(cells, np.ones((CELL, CELL), dtype=bool))
+    canvas = np.empty((200, 200, 4), dtype=np.uint8)
+    canvas[:, :, :3] = background
+    canvas[:, :, 3] = 255
+    if quiet_zone:
+        canvas[64 - CELL : 64 + SIDE + CELL, 64 - CELL : 64 + SIDE + CELL, :3] = white
+    patch = np.where(big[:, :, None], np.array(white), np.array(black)).astype(np.uint8)
+    canvas[64 : 64 + SIDE, 64 : 64 + SIDE, :3] = patch
+    corners = np.array(
+        [[63.5, 63.5], [63.5 + SIDE, 63.5], [63.5 + SIDE, 63.5 + SIDE], [63.5, 63.5 + SIDE]],
+        dtype=np.float32,
+    )
+    return canvas, Detection(tag_id, corners)
+
+
+def test_a_black_on_white_tag_has_no_chroma() -> None:
+    image, det = _tag_on_canvas(7, (250, 250, 250), (15, 15, 15))
+    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
+    assert chroma < 0.01
+
+
+def test_a_yellow_pictogram_on_a_dark_box_is_colourful() -> None:
+    image, det = _tag_on_canvas(7, (20, 220, 250), (25, 30, 20), quiet_zone=False)
+    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
+    assert chroma > 0.5
+
+
+@given(
+    gain=st.floats(0.3, 0.9),
+    offset=st.integers(0, 40),
+    tint=st.tuples(*[st.floats(0.9, 1.0)] * 3),
+)
+def test_tags_under_any_near_white_light_pass(
+    gain: float, offset: int, tint: tuple[float, float, float]
+) -> None:
+    """Brightness, black level and a light tint (white balance within 10 %) keep a tag in."""
+    white = tuple(round(offset + gain * 230 * t) for t in tint)
+    black = (offset, offset, offset)
+    image, det = _tag_on_canvas(3, white, black)  # type: ignore[arg-type]
+    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
+    assert chroma <= 0.11 < DEFAULT_MAX_CHROMA
+
+
+@given(channel=st.integers(0, 2), strength=st.floats(0.5, 1.0))
+def test_a_code_printed_in_one_colour_is_caught(channel: int, strength: float) -> None:
+    white = [40, 40, 40]
+    white[channel] = 40 + round(200 * strength)
+    image, det = _tag_on_canvas(11, tuple(white), (20, 20, 20))  # type: ignore[arg-type]
+    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
+    assert chroma > DEFAULT_MAX_CHROMA
+
+
+def test_keep_filters_and_needs_colour() -> None:
+    image, real = _tag_on_canvas(5, (240, 240, 240), (10, 10, 10))
+    coloured, fake = _tag_on_canvas(9, (30, 200, 250), (20, 20, 20), quiet_zone=False)
+    wide = np.concatenate([image, coloured], axis=1)  # the coloured one 200 px to the right
+    fake = Detection(9, fake.corners + np.array([200.0, 0.0], dtype=np.float32))
+    check = ChromaCheck(DICT)
+    assert [d.tag_id for d in check.keep(wide, [real, fake], DEFAULT_MAX_CHROMA)] == [5]
+    assert [d.tag_id for d in check.keep(wide, [real, fake], 10.0)] == [5, 9]
+    assert check.keep(wide, [], DEFAULT_MAX_CHROMA) == []
+    with pytest.raises(ValueError, match="colour image"):
+        check.chroma_many(np.zeros((20, 20), dtype=np.uint8), [real])
+
+
+def _frame(image: npt.NDArray[np.uint8]) -> Frame:
+    return Frame(image, ENCODINGS["bgra8"], None, "test", None)
+
+
+@pytest.mark.parametrize("detector", ["fast", "opencv"])
+def test_pipeline_drops_a_coloured_code_unless_the_check_is_off(detector: str) -> None:
+    image, _ = _tag_on_canvas(9, (20, 220, 250), (25, 30, 20), background=(235, 235, 235))
+    on = Pipeline(Settings(detector=detector)).process(_frame(image))
+    off = Pipeline(Settings(detector=detector, max_tag_chroma=0.0)).process(_frame(image))
+    assert [t.tag_id for t in off.tags] == [9]  # it decodes: a look-alike in grey
+    assert on.tags == ()
+    assert on.selected.tag_id == -1
+
+
+def test_generated_tags_pass_the_check() -> None:
+    """Real tags of generated scenes (lighting, noise, blur) measure far below the limit."""
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=5, effects=Effects.realistic())
+    check = ChromaCheck(DICT)
+    chroma: list[float] = []
+    for _ in range(6):
+        scene = generator.random_scene(4, 0, size_m=(0.15, 0.3), distance_m=(0.8, 3.0))
+        truth = [
+            Detection(m.tag_id, m.corners.astype(np.float32))
+            for m in scene.markers
+            if m.visible and not m.occluded
+        ]
+        chroma += check.chroma_many(scene.image, truth)
+    assert len(chroma) >= 12
+    assert max(chroma) < DEFAULT_MAX_CHROMA / 2
