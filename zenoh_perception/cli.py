@@ -55,6 +55,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         cdr=args.format == "cdr",
         camera_only=args.camera_only,
         limit=args.limit,
+        shm=args.shm,
         stop=stop_on_signals(),
     )
 

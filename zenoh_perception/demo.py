@@ -4,7 +4,9 @@ one process, so a newcomer with no camera sees the whole thing work.
 The camera is a rover driving toward tags on posts (``scene.SceneGenerator.drive``), published
 on the input key exactly as a real camera would (raw BGRA + msgpack attachment, or
 sensor_msgs/Image CDR with ``--format cdr``). With ``--camera-only`` it only publishes, to feed a
-``zenoh-perception run`` started elsewhere.
+``zenoh-perception run`` started elsewhere. With ``--shm`` it puts each frame from a Zenoh
+shared-memory buffer (:class:`~zenoh_perception.shm.ShmPutter`), as a camera on the service's
+machine would.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.scene import RESOLUTIONS, CameraModel, Scene, SceneGenerator
 from zenoh_perception.service import PerceptionService
 from zenoh_perception.settings import Settings
+from zenoh_perception.shm import ShmPutter
 
 DRIVE_SECONDS = 12.0
 
@@ -45,9 +48,12 @@ def publish_camera(
     cdr: bool,
     stop: threading.Event,
     limit: int = 0,
+    shm: bool = False,
 ) -> int:
-    """Publish ``scenes`` at ``fps`` until ``stop`` (or ``limit`` frames); returns frames sent."""
+    """Publish ``scenes`` at ``fps`` until ``stop`` (or ``limit`` frames); returns frames sent.
+    With ``shm``, frames go from a Zenoh shared-memory buffer (plain puts if unavailable)."""
     publisher = session.declare_publisher(key)
+    putter = ShmPutter() if shm else None
     period = 1.0 / fps
     next_at = time.monotonic()
     sent = 0
@@ -56,16 +62,19 @@ def publish_camera(
             if stop.is_set() or (limit and sent >= limit):
                 break
             stamp_ns = time.time_ns()
+            attachment = None
             if cdr:
-                publisher.put(
-                    bytes(
-                        encode_image_cdr(scene.image, "bgra8", stamp_ns=stamp_ns, frame_id="demo")
-                    )
+                payload = bytes(
+                    encode_image_cdr(scene.image, "bgra8", stamp_ns=stamp_ns, frame_id="demo")
                 )
             else:
                 height, width = scene.image.shape[:2]
                 meta = RawFrameMeta(width, height, stamp_ns=stamp_ns, frame_id="demo", seq=seq)
-                publisher.put(scene.image.tobytes(), attachment=meta.to_msgpack())
+                payload, attachment = scene.image.tobytes(), meta.to_msgpack()
+            if putter is None:
+                publisher.put(payload, attachment=attachment)
+            else:
+                putter.put(publisher, payload, attachment=attachment)
             sent += 1
             next_at += period
             delay = next_at - time.monotonic()
@@ -87,6 +96,7 @@ def main(
     cdr: bool = False,
     camera_only: bool = False,
     limit: int = 0,
+    shm: bool = False,
     stop: threading.Event | None = None,
     out: TextIO = sys.stdout,
 ) -> int:
@@ -96,7 +106,14 @@ def main(
     with zenoh.open(conf) as session:
         if camera_only:
             publish_camera(
-                session, settings.input_key, scenes, fps=fps, cdr=cdr, stop=stop, limit=limit
+                session,
+                settings.input_key,
+                scenes,
+                fps=fps,
+                cdr=cdr,
+                stop=stop,
+                limit=limit,
+                shm=shm,
             )
             return 0
 
@@ -111,7 +128,14 @@ def main(
             subscriber = session.declare_subscriber(settings.record_key, show)
             try:
                 publish_camera(
-                    session, settings.input_key, scenes, fps=fps, cdr=cdr, stop=stop, limit=limit
+                    session,
+                    settings.input_key,
+                    scenes,
+                    fps=fps,
+                    cdr=cdr,
+                    stop=stop,
+                    limit=limit,
+                    shm=shm,
                 )
                 stop.wait(0.5 if limit else 0)  # let the last frame's record arrive
             finally:
@@ -132,3 +156,9 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
         "--camera-only", action="store_true", help="only publish frames (feed a separate run)"
     )
     group.add_argument("--limit", type=int, default=0, help="stop after N frames (0: never)")
+    group.add_argument(
+        "--shm",
+        action="store_true",
+        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
+        "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
+    )

@@ -7,6 +7,10 @@ holds the pure pacing and progress-bar code, the Zenoh publishing loop (:func:`m
 Pacing: ``recorded`` follows the sources' recording clock (bag receive times, video FPS, image
 rate), ``rate`` sends at a fixed rate, ``asap`` as fast as Zenoh takes them. The publisher uses
 congestion control BLOCK, so a slow link slows the replay instead of dropping frames.
+
+``--shm`` publishes each frame from a Zenoh shared-memory buffer (:class:`ShmPutter`), as a
+camera on the service's machine would: no copy on put, the service reads the frame in place.
+Without shared memory it falls back to plain puts and says so in the log.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from typing import Final, TextIO
 
 import zenoh
 
+from zenoh_perception.shm import ShmPutter
 from zenoh_perception.signals import stop_on_signals
 from zenoh_perception.sources import (
     DEFAULT_FRAME_ID,
@@ -179,6 +184,7 @@ class ReplayOptions:
     wait_for_subscriber: bool = True
     subscriber_timeout_s: float | None = None  # None = wait until stopped
     progress: bool = False
+    shm: bool = False  # put frames from a Zenoh shared-memory buffer
 
 
 def _is_matching(publisher: zenoh.Publisher) -> bool:
@@ -223,6 +229,7 @@ def _publish_all(
     stop: threading.Event,
     clock: Clock,
     progress: ProgressBar | None,
+    putter: ShmPutter | None = None,
 ) -> int:
     """Publish passes of ``source`` until done, stopped or at the limit; frames published."""
     pacer = Pacer(options.pacing, options.rate_hz)
@@ -232,7 +239,7 @@ def _publish_all(
         frames = source.frames(epoch_ns=time.time_ns(), seq_start=published)
         with closing(frames):
             for frame in frames:
-                if not _send(publisher, frame, pacer=pacer, stop=stop, clock=clock):
+                if not _send(publisher, frame, pacer=pacer, stop=stop, clock=clock, putter=putter):
                     return published
                 published += 1
                 sent_this_pass += 1
@@ -252,15 +259,18 @@ def _send(
     pacer: Pacer,
     stop: threading.Event,
     clock: Clock,
+    putter: ShmPutter | None = None,
 ) -> bool:
-    """Wait until ``frame`` is due, then put it; False when stopped first."""
+    """Wait until ``frame`` is due, then put it (from shared memory with ``putter``); False
+    when stopped first."""
     delay = pacer.due(frame.stamp_ns, clock()) - clock()
     if (delay > 0 and stop.wait(delay)) or stop.is_set():
         return False
+    payload = frame.payload if putter is None else putter.load(frame.payload)
     if frame.attachment is None:
-        publisher.put(frame.payload, encoding=_CDR_ENCODING)
+        publisher.put(payload, encoding=_CDR_ENCODING)
     else:
-        publisher.put(frame.payload, encoding=_RAW_ENCODING, attachment=frame.attachment)
+        publisher.put(payload, encoding=_RAW_ENCODING, attachment=frame.attachment)
     return True
 
 
@@ -301,27 +311,35 @@ def main(
             )
             raise ReplayError(msg)
         log.info(
-            "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d",
+            "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d shm=%s",
             source.kind,
             source.count if source.count is not None else "unknown",
             options.key,
             options.pacing,
             options.loop,
             options.limit,
+            options.shm,
         )
         start = clock()
         stream = progress_stream if progress_stream is not None else sys.stderr
         progress = ProgressBar(stream, total) if options.progress else None
+        putter = ShmPutter() if options.shm else None
         published = _publish_all(
-            publisher, source, options, stop=stop, clock=clock, progress=progress
+            publisher, source, options, stop=stop, clock=clock, progress=progress, putter=putter
         )
         if progress is not None:
             progress.finish(published, clock())
+        shm = (
+            ""
+            if putter is None
+            else f" shm_frames={putter.shm_frames} plain_frames={putter.plain_frames}"
+        )
         log.info(
-            "event=replay_done published=%d stopped=%s seconds=%.2f",
+            "event=replay_done published=%d stopped=%s seconds=%.2f%s",
             published,
             stop.is_set(),
             clock() - start,
+            shm,
         )
     return 0
 
@@ -369,6 +387,7 @@ def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> Repla
         wait_for_subscriber=args.wait_for_subscriber,
         subscriber_timeout_s=args.subscriber_timeout,
         progress=stderr_is_tty if args.progress is None else args.progress,
+        shm=args.shm,
     )
 
 
@@ -438,6 +457,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action=argparse.BooleanOptionalAction,
         default=None,
         help="progress bar on stderr (default: only when stderr is a terminal)",
+    )
+    parser.add_argument(
+        "--shm",
+        action="store_true",
+        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's "
+        "machine would (no copy on put; plain puts, with a warning, where shared memory is "
+        "unavailable) (default: off)",
     )
     parser.add_argument(
         "--wait-for-subscriber",
