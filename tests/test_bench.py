@@ -1,5 +1,7 @@
 """``zenoh-perception bench --quick``: runs end to end and reports what it should (no timings
-are checked here: timings belong to the bench itself)."""
+are checked here: timings belong to the bench itself). The end-to-end part starts the real
+``zenoh-perception run`` as subprocesses; the camera puts from shared memory by default, plain
+bytes with ``--no-shm``."""
 
 from __future__ import annotations
 
@@ -13,12 +15,15 @@ import pytest
 
 from zenoh_perception import cli
 from zenoh_perception.bench.detectors import (
+    E2E_DETECTORS,
     RESOLUTIONS,
     Plan,
     Progress,
+    ServiceError,
     Tally,
     format_report,
     goals,
+    lockstep,
     score,
 )
 from zenoh_perception.detection import Detection
@@ -50,6 +55,16 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return data
 
 
+@pytest.fixture(scope="module")
+def report_no_shm(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """A smaller quick run whose camera puts plain bytes."""
+    path = tmp_path_factory.mktemp("bench") / "bench.json"
+    argv = ["bench", "--quick", "--no-shm", "--frames", "2", "--video-frames", "4"]
+    assert cli.main([*argv, "--json", str(path)]) == 0
+    data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    return data
+
+
 def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, Any]) -> None:
     quick = Plan.quick()
     assert set(report["sets"]) == {*RESOLUTIONS, "video", "distractors"}
@@ -74,21 +89,62 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, 
             assert entry["fast"]["centre_error_px"] < 0.5
 
 
-def test_end_to_end_and_throughput_ran_through_the_service(report: dict[str, Any]) -> None:
+def test_end_to_end_and_throughput_ran_through_service_processes(report: dict[str, Any]) -> None:
     e2e = report["e2e"]
     assert set(e2e) == {"HD720", "video"}
     for name, entry in e2e.items():
-        for who in ("opencv", "fast"):
+        assert set(entry) == {*E2E_DETECTORS, "baseline_detection", "camera"}  # no "none" row
+        for who in E2E_DETECTORS:
             summary = entry[who]
-            assert summary["frames"] == report["sets"][name]["fast"]["frames"]
+            frames = report["sets"][name]["fast"]["frames"]
+            assert summary["frames"] == frames
+            assert summary["records"] == frames  # every lockstep frame answered with a record
             assert 0.0 < summary["median_ms"] <= summary["p99_ms"]
             assert summary["visible"] == report["sets"][name]["fast"]["visible"]
-    for who in ("opencv", "fast"):
+            # the overhead column: e2e minus the service's own detect_ms, frame by frame
+            assert 0.0 < summary["detect_median_ms"] < summary["p99_ms"]
+            assert summary["overhead_median_ms"] is not None
+            assert summary["overhead_mean_ms"] == pytest.approx(
+                summary["mean_ms"] - summary["detect_mean_ms"], abs=2e-3
+            )
+        camera = entry["camera"]
+        assert camera["shm"] is (camera["unavailable"] is None)
+        assert camera["shm_frames"] + camera["plain_frames"] > 2 * frames  # + warm-up frames
+    setup = report["e2e_setup"]
+    assert setup["shm_requested"] is True
+    assert setup["shm"] is (setup["shm_fallback"] is None)  # SHM unless this machine lacks it
+    for who in E2E_DETECTORS:
         run = report["throughput"][who]
         assert run["published"] == round(60 * Plan.quick().throughput_s)
         assert run["received"] == run["published"]  # the bench publishes with congestion block
         assert run["processed"] + run["dropped"] == run["received"]
         assert run["resolution"] == "1920x1080"
+        assert run["latency_p50_ms"] is not None
+        assert run["camera"]["shm"] is setup["shm"]
+    text = format_report(report)
+    assert "overhead med" in text
+    assert "no detector" not in text
+    assert setup["camera_put"] in text
+
+
+def test_no_shm_puts_plain_bytes_and_says_so(report_no_shm: dict[str, Any]) -> None:
+    setup = report_no_shm["e2e_setup"]
+    assert (setup["shm_requested"], setup["shm"]) == (False, False)
+    assert setup["camera_put"].startswith("plain bytes")
+    cameras = [e["camera"] for e in report_no_shm["e2e"].values()]
+    cameras += [t["camera"] for t in report_no_shm["throughput"].values()]
+    assert all(c["shm"] is False for c in cameras)
+    for entry in report_no_shm["e2e"].values():
+        for who in E2E_DETECTORS:
+            assert entry[who]["records"] == entry[who]["frames"] > 0
+            assert entry[who]["overhead_median_ms"] is not None
+    assert "camera put: plain bytes" in format_report(report_no_shm)
+
+
+def test_a_service_that_fails_to_start_is_reported_with_its_output() -> None:
+    scene = SceneGenerator(CameraModel.named("VGA"), seed=3).random_scene(1, 0)
+    with pytest.raises(ServiceError, match="detector must be one of"):
+        lockstep(["bogus"], [scene], None, "bogus")
 
 
 def test_goals_have_a_verdict_and_the_plot_is_written(report: dict[str, Any]) -> None:

@@ -18,11 +18,30 @@ the right id), false positives (reported tags that are not a tag there), median 
 (pixels, mean of corners against the truth) and median distance error (solvePnP on the
 reported corners with the scene's intrinsics and tag size).
 
-End to end, through the real service (:class:`PerceptionService`) on an in-process pair of
-Zenoh peers over loopback (multicast off): raw BGRA frames are put one at a time and the next
-goes when the ``tag`` of the previous one is back (lockstep); recall is computed from the
-``perception/tags`` records. Throughput: HD1080 frames published at 60 Hz for a few seconds,
-every frame must be processed (none dropped by the latest-frame-wins mailbox).
+End to end, as deployed: each service is the real CLI in its own process
+(``zenoh-perception run --detector opencv|fast``, on keys of its own, ``-l`` a loopback port,
+multicast scouting off) and the bench process is only the camera and the consumer, one Zenoh
+peer that the services dial (the bench listens first, so no connect-retry timer delays a
+start). A service is ready once its frame subscriber matches the bench's publisher (it
+declares it last) and a warm-up frame has been answered; no fixed sleeps. Raw BGRA frames are
+put one at a time and the next goes when the ``tag`` of the previous one is back (lockstep).
+By default the camera puts each frame from a Zenoh shared-memory buffer
+(:class:`~zenoh_perception.shm.ShmPutter`), as a camera on the service's machine does: the
+frame is written into its buffer *before* the clock starts (a camera writes its image into its
+buffer anyway; the write time is reported as ``write_median_ms``), and the timed interval is
+``put`` -> ``tag`` callback in the bench. ``--no-shm`` puts plain ``bytes`` instead, which
+Zenoh copies inside the timed interval. The report's ``e2e_setup`` and the printed table say
+which was used (and why, if shared memory was unavailable). Recall, false positives and the
+per-frame ``timing`` come from the ``perception/tags`` records; the overhead column is, per
+frame, end to end minus the record's ``detect_ms``: everything but the detector (transport both
+ways, the copy out of Zenoh, decoding, the grey conversion, selection, publishing).
+
+Throughput: HD1080 frames published at 60 Hz for a few seconds to a service process, every
+frame must be processed (none dropped by the latest-frame-wins mailbox); counts come from the
+service's status queryable, latency (receive -> publish in the service) from its records. It
+moved out of the bench's process with the lockstep runs: in-process, the 60 Hz camera, the
+consumer callbacks and the service shared one interpreter (GIL), which a deployment never does,
+and the subprocess costs one start-up per detector and no other change.
 
 ``--levers`` adds an ablation table (detection only) of the choices the detector made.
 """
@@ -32,16 +51,19 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import logging
 import math
 import os
 import platform
 import queue
+import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
@@ -53,18 +75,13 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception import __version__
-from zenoh_perception.detection import (
-    Detection,
-    Detector,
-    aruco_dictionary,
-    detections_from_opencv,
-)
+from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
+from zenoh_perception.errors import PerceptionError
 from zenoh_perception.fast_detector import FastDetector, FastDetectorConfig
 from zenoh_perception.frames import RawFrameMeta
 from zenoh_perception.pose import Intrinsics, estimate_pose
 from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
-from zenoh_perception.service import PerceptionService
-from zenoh_perception.settings import Settings
+from zenoh_perception.shm import Loaded, ShmPutter
 
 Image = npt.NDArray[np.uint8]
 Handler = Callable[[argparse.Namespace], int]
@@ -74,6 +91,8 @@ DICTIONARY: Final = "DICT_4X4_50"
 VIDEO_RESOLUTION: Final = "HD720"
 THROUGHPUT_RESOLUTION: Final = "HD1080"
 THROUGHPUT_HZ: Final = 60.0
+#: The services measured end to end (``zenoh-perception run --detector NAME``).
+E2E_DETECTORS: Final = ("opencv", "fast")
 
 # goal thresholds (issue 4, and issue 2's end-to-end figure)
 VIDEO_E2E_RATIO: Final = 0.5
@@ -328,12 +347,27 @@ def _tick(progress: Progress | None, label: str) -> None:
 
 # ------------------------------------------------------------------ end to end (Zenoh)
 
+#: seq of the warm-up frames (never a measured frame's).
+WARMUP_SEQ: Final = 10**9
+#: A service process must answer within this (start-up imports OpenCV and Zenoh; a busy
+#: 2-core machine can take many seconds).
+STARTUP_TIMEOUT_S: Final = 90.0
+ANSWER_TIMEOUT_S: Final = 30.0
+
+
+class ServiceError(PerceptionError):
+    """A service process of the bench did not start, did not answer or died."""
+
 
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         sock.bind(("127.0.0.1", 0))
         port: int = sock.getsockname()[1]
         return port
+
+
+def _endpoint() -> str:
+    return f"tcp/127.0.0.1:{_free_port()}"
 
 
 def _config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Config:
@@ -343,31 +377,6 @@ def _config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Config:
     conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     return conf
-
-
-class Loopback:
-    """Two in-process Zenoh peers on a free loopback port: one for the service, one for us."""
-
-    def __init__(self) -> None:
-        endpoint = f"tcp/127.0.0.1:{_free_port()}"
-        self.service_session = zenoh.open(_config([endpoint], []))
-        try:
-            self.client = zenoh.open(_config([], [endpoint]))
-        except zenoh.ZError:
-            _close(self.service_session)
-            raise
-
-    def __enter__(self) -> Loopback:
-        return self
-
-    def __exit__(self, *_exc: object) -> None:
-        _close(self.client)
-        _close(self.service_session)
-
-
-def _close(session: Any) -> None:
-    """Close a session (zenoh-python leaves close() unannotated)."""
-    session.close()
 
 
 def _undeclare(entity: Any) -> None:
@@ -391,72 +400,160 @@ def raw_frames(scenes: Iterable[Scene]) -> list[RawFrame]:
     return out
 
 
-class _Service:
-    """The service on ``peers.service_session`` and our publisher / subscribers."""
+class ServiceProcess:
+    """``zenoh-perception run`` as a subprocess: the deployed service, on keys of its own
+    (``bench/<name>/...``), listening on a loopback port and dialling the bench's peer.
 
-    def __init__(self, peers: Loopback, detector: Detector, settings: Settings) -> None:
-        self.settings = settings
-        self.service = PerceptionService(peers.service_session, settings, detector=detector)
+    Its output goes to a temporary file (a pipe nobody reads could fill up and stall it) and
+    is shown when it fails. :meth:`stop` (SIGTERM, then SIGKILL after a timeout) is always
+    called by the code that started it.
+    """
+
+    def __init__(self, name: str, detector: str, bench_endpoint: str) -> None:
+        self.name = name
+        prefix = f"bench/{name}"
+        self.input_key = f"{prefix}/image"
+        self.tag_key = f"{prefix}/tag"
+        self.record_key = f"{prefix}/tags"
+        self.status_key = f"{prefix}/status"
+        self._log = tempfile.TemporaryFile("w+", encoding="utf-8")  # noqa: SIM115 - stop()
+        command = [
+            sys.executable,
+            "-m",
+            "zenoh_perception",
+            "run",
+            "-l",
+            _endpoint(),
+            "-e",
+            bench_endpoint,
+            "--no-multicast-scouting",
+            "--detector",
+            detector,
+            "--dictionary",
+            DICTIONARY,
+            "--input-key",
+            self.input_key,
+            "--tag-key",
+            self.tag_key,
+            "--record-key",
+            self.record_key,
+            "--status-key",
+            self.status_key,
+            "--liveliness-key",
+            f"{prefix}/alive",
+            "--stats-interval-s",
+            "0",
+        ]
+        self.proc = subprocess.Popen(
+            command,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+
+    def output(self) -> str:
+        self._log.flush()
+        self._log.seek(0)
+        return self._log.read()
+
+    def check(self) -> None:
+        """Raise :class:`ServiceError` with the output if the process has exited."""
+        code = self.proc.poll()
+        if code is not None:
+            msg = f"service {self.name!r} exited with {code}:\n{self.output()[-4000:]}"
+            raise ServiceError(msg)
+
+    def failure(self, what: str) -> ServiceError:
+        return ServiceError(f"service {self.name!r}: {what}; its output:\n{self.output()[-4000:]}")
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGTERM, then SIGKILL if it has not exited within ``timeout``; the exit code."""
+        try:
+            if self.proc.poll() is None:
+                self.proc.send_signal(signal.SIGTERM)
+                try:
+                    self.proc.wait(timeout=timeout)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait()
+            return self.proc.returncode
+        finally:
+            self._log.close()
+
+
+class _Remote:
+    """The bench's side of one service process: the camera publisher on its input key, the
+    consumer subscribers on its ``tag`` and record keys (records are decoded afterwards)."""
+
+    def __init__(self, session: zenoh.Session, service: ServiceProcess) -> None:
+        self.service = service
+        self._session = session
         self.tags: queue.Queue[float] = queue.Queue()
         self._raw_records: list[bytes] = []
         self._lock = threading.Lock()
-        self.service.start()
-        client = peers.client
+        self._matched = threading.Event()
         self._subs = [
-            client.declare_subscriber(settings.tag_key, self._on_tag),
-            client.declare_subscriber(settings.record_key, self._on_record),
+            session.declare_subscriber(service.tag_key, self._on_tag),
+            session.declare_subscriber(service.record_key, self._on_record),
         ]
-        # block rather than drop when the link is busy: the bench measures the service, and
-        # a frame lost by Zenoh on loopback would count as neither processed nor dropped
-        self.publisher = client.declare_publisher(
-            settings.input_key, congestion_control=zenoh.CongestionControl.BLOCK
+        # block rather than drop when the link is busy: a frame lost by Zenoh on loopback
+        # would count as neither processed nor dropped
+        self.publisher = session.declare_publisher(
+            service.input_key, congestion_control=zenoh.CongestionControl.BLOCK
         )
+        self._listener = self.publisher.declare_matching_listener(self._on_matching)
 
     def _on_tag(self, _sample: zenoh.Sample) -> None:
         self.tags.put(time.perf_counter())
 
     def _on_record(self, sample: zenoh.Sample) -> None:
-        # decoded later: this callback must not compete for the GIL with a service at work
         with self._lock:
             self._raw_records.append(sample.payload.to_bytes())
 
-    def decoded_records(self) -> dict[int, list[Detection]]:
-        """seq -> the detections of every record received so far."""
-        with self._lock:
-            raw = list(self._raw_records)
-        out: dict[int, list[Detection]] = {}
-        for payload in raw:
-            record = msgpack.unpackb(payload, raw=False)
-            out[int(record["seq"])] = [
-                Detection(int(tag["tag_id"]), np.asarray(tag["corners"], dtype=np.float32))
-                for tag in record["tags"]
-            ]
-        return out
+    def _on_matching(self, status: zenoh.MatchingStatus) -> None:
+        if status.matching:
+            self._matched.set()
 
-    @property
-    def record_count(self) -> int:
-        with self._lock:
-            return len(self._raw_records)
-
-    def put(self, frame: RawFrame) -> None:
-        self.publisher.put(frame.payload, attachment=frame.attachment)
-
-    def warm_up(self, width: int, height: int, timeout: float = 10.0) -> None:
-        """Put blank frames until one is answered (the whole path is then ready)."""
-        blank = RawFrame(
-            bytes(width * height * 4), RawFrameMeta(width, height, seq=10**9).to_msgpack()
-        )
+    def wait_ready(self, timeout: float = STARTUP_TIMEOUT_S) -> None:
+        """Until the service's frame subscriber is matched (it declares it last, once every
+        other part is up); fails early with the output if the process exits."""
         deadline = time.monotonic() + timeout
+        while not self._matched.wait(0.1):
+            self.service.check()
+            if time.monotonic() > deadline:
+                raise self.service.failure(f"no subscriber on {self.service.input_key} in time")
+
+    def warm_up(self, width: int, height: int, camera: Camera) -> None:
+        """Put blank frames until one is answered: the whole path is then ready (OpenCV's
+        first-call costs paid), and leftovers are drained."""
+        meta = RawFrameMeta(width, height, seq=WARMUP_SEQ).to_msgpack()
+        blank = RawFrame(bytes(width * height * 4), meta)
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        puts = 0
         while time.monotonic() < deadline:
-            self.put(blank)
+            self.service.check()
+            self.publisher.put(camera.load(blank.payload), attachment=blank.attachment)
+            puts += 1
             try:
-                self.tags.get(timeout=0.2)
+                self.tags.get(timeout=1.0)
             except queue.Empty:
                 continue
+            if puts > 1:  # the answer of another warm-up frame may still be on its way
+                _quiet(self)
             self.drain()
             return
-        msg = "the service did not answer within the warm-up time"
-        raise TimeoutError(msg)
+        raise self.service.failure("no answer to warm-up frames")
+
+    def wait_answer(self, timeout: float = ANSWER_TIMEOUT_S) -> float:
+        """perf_counter() time at which the next ``tag`` arrived."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return self.tags.get(timeout=min(1.0, max(0.0, deadline - time.monotonic())))
+            except queue.Empty:
+                if time.monotonic() >= deadline:
+                    raise self.service.failure(f"no tag within {timeout} s") from None
+                self.service.check()
 
     def drain(self) -> None:
         while True:
@@ -465,115 +562,225 @@ class _Service:
             except queue.Empty:
                 return
 
+    def records(self) -> list[dict[str, Any]]:
+        """Every record received so far, decoded, warm-up frames left out."""
+        with self._lock:
+            raw = list(self._raw_records)
+        decoded = (msgpack.unpackb(payload, raw=False) for payload in raw)
+        return [r for r in decoded if int(r["seq"]) != WARMUP_SEQ]
+
+    def clear_records(self) -> None:
+        with self._lock:
+            self._raw_records.clear()
+
+    def status(self) -> dict[str, Any]:
+        """The service's status (its own counters), from its queryable."""
+        for reply in self._session.get(self.service.status_key, timeout=2.0):
+            if reply.ok is not None:
+                data: dict[str, Any] = json.loads(reply.ok.payload.to_string())
+                return data
+        self.service.check()
+        raise self.service.failure("no status reply")
+
     def close(self) -> None:
-        for sub in self._subs:
-            _undeclare(sub)
-        _undeclare(self.publisher)
-        self.service.close()
+        for entity in (self._listener, *self._subs, self.publisher):
+            with suppress(zenoh.ZError):  # already gone with the session
+                _undeclare(entity)
+
+
+class Camera:
+    """The bench's camera: from shared memory (:class:`ShmPutter`, the default) or plain bytes.
+
+    :meth:`load` is the camera writing its image into the buffer it puts; the bench calls it
+    before starting the clock, then times ``put`` -> ``tag``.
+    """
+
+    def __init__(self, shm: bool) -> None:
+        self.putter = ShmPutter() if shm else None
+        self.write_ms: list[float] = []
+
+    def load(self, payload: bytes) -> Loaded:
+        if self.putter is None:
+            return payload
+        start = time.perf_counter()
+        loaded = self.putter.load(payload)
+        self.write_ms.append((time.perf_counter() - start) * 1e3)
+        return loaded
+
+    def summary(self) -> dict[str, Any]:
+        """``shm``: frames went from shared memory (``plain_frames`` counts any that did not,
+        every buffer of the pool being held at the time; ``unavailable`` says why SHM was not
+        used at all)."""
+        if self.putter is None:
+            return {"shm": False, "put": "bytes (Zenoh copies them on put)"}
+        times = np.asarray(self.write_ms, dtype=np.float64)
+        return {
+            **self.putter.summary(),
+            "put": "shared-memory buffer",
+            "write_median_ms": _r(np.median(times)) if times.size else None,
+        }
+
+
+@contextmanager
+def _services(
+    names: Sequence[str], bench_endpoint: str, session: zenoh.Session
+) -> Iterator[dict[str, _Remote]]:
+    """Start one service process per detector name (all at once: start-ups overlap), wait
+    until each is ready; always stopped and undeclared on exit."""
+    processes: list[ServiceProcess] = []
+    remotes: dict[str, _Remote] = {}
+    try:
+        for name in names:
+            processes.append(ServiceProcess(name, name, bench_endpoint))
+            remotes[name] = _Remote(session, processes[-1])
+        for remote in remotes.values():
+            remote.wait_ready()
+        yield remotes
+    finally:
+        for remote in remotes.values():
+            remote.close()
+        for process in processes:
+            process.stop()
 
 
 @dataclass(slots=True)
 class Lockstep:
-    """End-to-end latencies of one service and what its records say (recall, FP)."""
+    """End-to-end latencies of one service and what its records say (recall, FP, timing)."""
 
     latencies_ms: list[float]
     tally: Tally
+    timing: list[dict[str, float] | None]  # the record's ``timing`` per frame (None: no record)
+
+    def overhead_ms(self) -> list[float]:
+        """Per frame with a record: end to end minus the service's ``detect_ms``."""
+        return [
+            e2e - t["detect_ms"]
+            for e2e, t in zip(self.latencies_ms, self.timing, strict=True)
+            if t is not None
+        ]
 
 
 def lockstep(
-    detectors: dict[str, Detector],
+    detectors: Sequence[str],
     scenes: Sequence[Scene],
     progress: Progress | None,
     label: str,
-) -> tuple[dict[str, Lockstep], list[float]]:
-    """End-to-end latency (frame put -> ``tag`` received) of one service per detector, one
-    frame at a time, and the baseline's bare detection time on the same frame.
+    *,
+    shm: bool = True,
+) -> tuple[dict[str, Lockstep], list[float], dict[str, Any]]:
+    """End-to-end latency (frame put -> ``tag`` received) of one service process per detector
+    name (``fast``, ``opencv``), one frame at a time, and the baseline's bare detection time on
+    the same frame; returns (per service, bare baseline times, camera summary).
 
     The services run side by side (each on its own keys) and every frame goes to each in
     turn, right after the bare baseline has run on it (the order rotates per frame): a
-    slower or busier moment of the machine affects all of them alike. Recall and false
-    positives come from the ``perception/tags`` records each service published.
+    slower or busier moment of the machine affects all of them alike. With ``shm`` the frame
+    is written into a shared-memory buffer before the clock starts. Recall, false positives
+    and the per-frame timing come from the ``perception/tags`` records each service published.
     """
     frames = raw_frames(scenes)
     height, width = scenes[0].image.shape[:2]
     latencies: dict[str, list[float]] = {name: [] for name in detectors}
     bare: list[float] = []
     baseline = Baseline()
-    with Loopback() as peers:
-        services: dict[str, _Service] = {}
-        try:
-            for name, detector in detectors.items():
-                services[name] = _Service(peers, detector, _settings(detector, f"bench/{name}"))
-            for svc in services.values():
-                svc.warm_up(width, height)
-            steps: list[str] = ["", *services]
-            for index, frame in enumerate(frames):
-                shift = index % len(steps)
-                for step in steps[shift:] + steps[:shift]:
-                    if not step:
-                        bare.append(baseline.run(scenes[index].image)[1])
-                        continue
-                    svc = services[step]
-                    start = time.perf_counter()
-                    svc.put(frame)
-                    latencies[step].append((svc.tags.get(timeout=10.0) - start) * 1e3)
-                _tick(progress, label)
-            deadline = time.monotonic() + 5.0
-            while time.monotonic() < deadline and any(
-                svc.record_count < len(frames) + 1 for svc in services.values()
-            ):
-                time.sleep(0.01)
-        finally:
-            for svc in services.values():
-                svc.close()
+    camera = Camera(shm)
+    bench_endpoint = _endpoint()
+    with (
+        zenoh.open(_config([bench_endpoint], [])) as session,
+        _services(detectors, bench_endpoint, session) as remotes,
+    ):
+        for remote in remotes.values():
+            remote.warm_up(width, height, camera)
+        steps: list[str] = ["", *remotes]
+        for index, frame in enumerate(frames):
+            shift = index % len(steps)
+            for step in steps[shift:] + steps[:shift]:
+                if not step:
+                    bare.append(baseline.run(scenes[index].image)[1])
+                    continue
+                remote = remotes[step]
+                loaded = camera.load(frame.payload)  # the camera's own write, not timed
+                start = time.perf_counter()
+                remote.publisher.put(loaded, attachment=frame.attachment)
+                latencies[step].append((remote.wait_answer() - start) * 1e3)
+                del loaded
+            _tick(progress, label)
+        records = {name: _records_by_seq(r, len(frames)) for name, r in remotes.items()}
     out: dict[str, Lockstep] = {}
-    for name, svc in services.items():
-        records = svc.decoded_records()
+    for name, by_seq in records.items():
         tally = Tally()
+        timing: list[dict[str, float] | None] = []
         for seq, scene in enumerate(scenes):
-            tally.add(scene, records.get(seq, []), None)
+            record = by_seq.get(seq)
+            tally.add(scene, _detections(record), None)
+            timing.append(None if record is None else dict(record["timing"]))
         tally.times_ms = latencies[name]
-        out[name] = Lockstep(latencies[name], tally)
-    return out, bare
+        out[name] = Lockstep(latencies[name], tally, timing)
+    return out, bare, camera.summary()
+
+
+def _records_by_seq(remote: _Remote, count: int, timeout: float = 10.0) -> dict[int, Any]:
+    """seq -> record for frames 0..count-1, once all are in (or after ``timeout``)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        by_seq = {int(r["seq"]): r for r in remote.records() if int(r["seq"]) < count}
+        if len(by_seq) >= count or time.monotonic() >= deadline:
+            return by_seq
+        time.sleep(0.01)
+
+
+def _detections(record: dict[str, Any] | None) -> list[Detection]:
+    if record is None:
+        return []
+    return [
+        Detection(int(tag["tag_id"]), np.asarray(tag["corners"], dtype=np.float32))
+        for tag in record["tags"]
+    ]
 
 
 def throughput(
-    detector: Detector,
+    detector: str,
     frames: Sequence[RawFrame],
     *,
     rate_hz: float,
     seconds: float,
     progress: Progress | None,
     label: str,
+    shm: bool = True,
 ) -> dict[str, Any]:
-    """Publish ``frames`` (cycled forward and back) at ``rate_hz`` for ``seconds``."""
-    settings = _settings(detector)
+    """Publish ``frames`` (cycled forward and back) at ``rate_hz`` for ``seconds`` to a service
+    process; counts from its status queryable, latency (receive -> publish) from its records."""
     order = list(range(len(frames))) + list(range(len(frames) - 2, 0, -1))
     count = max(1, round(rate_hz * seconds))
     height, width = _frame_size(frames[0])
-    with Loopback() as peers:
-        svc = _Service(peers, detector, settings)
-        try:
-            svc.warm_up(width, height)
-            before = _quiet(svc)  # warm-up frames still in flight must not count
-            start = time.perf_counter()
-            late = 0
-            for i in range(count):
-                due = start + i / rate_hz
-                delay = due - time.perf_counter()
-                if delay > 0:
-                    time.sleep(delay)
-                elif delay < -0.5 / rate_hz:
-                    late += 1
-                svc.put(frames[order[i % len(order)]])
-                _tick(progress, label)
-            published_s = time.perf_counter() - start
-            stats = _settle(svc, before.received + count)
-        finally:
-            svc.close()
-    received = stats.received - before.received
-    processed = stats.processed - before.processed
-    dropped = stats.dropped - before.dropped
+    camera = Camera(shm)
+    bench_endpoint = _endpoint()
+    with (
+        zenoh.open(_config([bench_endpoint], [])) as session,
+        _services([detector], bench_endpoint, session) as remotes,
+    ):
+        remote = remotes[detector]
+        remote.warm_up(width, height, camera)
+        before = _quiet(remote)  # warm-up frames still in flight must not count
+        remote.clear_records()
+        start = time.perf_counter()
+        late = 0
+        for i in range(count):
+            due = start + i / rate_hz
+            delay = due - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -0.5 / rate_hz:
+                late += 1
+            frame = frames[order[i % len(order)]]
+            remote.publisher.put(camera.load(frame.payload), attachment=frame.attachment)
+            _tick(progress, label)
+        published_s = time.perf_counter() - start
+        stats = _settle(remote, _count(before, "received") + count)
+        latency = [float(r["timing"]["latency_ms"]) for r in remote.records()]
+    received = _count(stats, "received") - _count(before, "received")
+    processed = _count(stats, "processed") - _count(before, "processed")
+    dropped = _count(stats, "dropped") - _count(before, "dropped")
     return {
         "resolution": f"{width}x{height}",
         "rate_hz": rate_hz,
@@ -584,25 +791,10 @@ def throughput(
         "processed": processed,
         "dropped": dropped,
         "processed_hz": _r(processed / published_s if published_s > 0 else 0.0),
-        "latency_p50_ms": _r(stats.latency_p50_ms),
-        "latency_p99_ms": _r(stats.latency_p99_ms),
+        "latency_p50_ms": _r(np.percentile(latency, 50)) if latency else None,
+        "latency_p99_ms": _r(np.percentile(latency, 99)) if latency else None,
+        "camera": camera.summary(),
     }
-
-
-def _settings(detector: Detector, prefix: str = "") -> Settings:
-    """Service settings for ``detector``; with ``prefix``, on keys of its own."""
-    name = "fast" if isinstance(detector, FastDetector) else "opencv"
-    if not prefix:
-        return Settings(detector=name, stats_interval_s=0.0)
-    return Settings(
-        detector=name,
-        stats_interval_s=0.0,
-        input_key=f"{prefix}/image",
-        tag_key=f"{prefix}/tag",
-        record_key=f"{prefix}/tags",
-        status_key=f"{prefix}/status",
-        liveliness_key=f"{prefix}/alive",
-    )
 
 
 def _frame_size(frame: RawFrame) -> tuple[int, int]:
@@ -610,34 +802,43 @@ def _frame_size(frame: RawFrame) -> tuple[int, int]:
     return int(meta["height"]), int(meta["width"])
 
 
-def _quiet(svc: _Service, timeout: float = 5.0) -> Any:
-    """Service stats once nothing has arrived for 0.3 s and everything received is handled."""
+def _count(status: dict[str, Any], name: str) -> int:
+    return int(status["frames"][name])
+
+
+def _handled(status: dict[str, Any]) -> int:
+    return sum(_count(status, k) for k in ("processed", "dropped", "rejected"))
+
+
+def _quiet(remote: _Remote, timeout: float = 5.0) -> dict[str, Any]:
+    """Service status once nothing has arrived for 0.3 s and everything received is handled."""
     deadline = time.monotonic() + timeout
-    last = svc.service.stats.snapshot()
+    last = remote.status()
     still_since = time.monotonic()
     while time.monotonic() < deadline:
         time.sleep(0.05)
-        stats = svc.service.stats.snapshot()
-        handled = stats.processed + stats.dropped + sum(stats.rejected.values())
-        if stats.received != last.received or handled < stats.received:
+        status = remote.status()
+        if _count(status, "received") != _count(last, "received") or _handled(status) < _count(
+            status, "received"
+        ):
             still_since = time.monotonic()
         elif time.monotonic() - still_since >= 0.3:
-            return stats
-        last = stats
+            return status
+        last = status
     return last
 
 
-def _settle(svc: _Service, expected_received: int, timeout: float = 5.0) -> Any:
-    """Service stats once every frame put has been received and handled (or on timeout)."""
+def _settle(remote: _Remote, expected_received: int, timeout: float = 10.0) -> dict[str, Any]:
+    """Service status once every frame put has been received and handled (or on timeout)."""
     deadline = time.monotonic() + timeout
-    stats = svc.service.stats.snapshot()
+    status = remote.status()
     while time.monotonic() < deadline:
-        stats = svc.service.stats.snapshot()
-        handled = stats.processed + stats.dropped + sum(stats.rejected.values())
-        if stats.received >= expected_received and handled >= stats.received:
+        status = remote.status()
+        received = _count(status, "received")
+        if received >= expected_received and _handled(status) >= received:
             break
         time.sleep(0.02)
-    return stats
+    return status
 
 
 # ------------------------------------------------------------------ levers (ablation)
@@ -724,8 +925,11 @@ def levers(sets: Sequence[FrameSet], progress: Progress | None) -> list[dict[str
 # ------------------------------------------------------------------ the bench
 
 
-def run_bench(plan: Plan, *, with_e2e: bool = True, with_levers: bool = False) -> dict[str, Any]:
-    """Measure everything; returns the JSON-ready report (see the module doc)."""
+def run_bench(
+    plan: Plan, *, with_e2e: bool = True, with_levers: bool = False, shm: bool = True
+) -> dict[str, Any]:
+    """Measure everything; returns the JSON-ready report (see the module doc). ``shm``: the
+    end-to-end camera puts frames from shared memory (else plain bytes)."""
     work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
     if with_e2e:
         work += plan.frames + plan.video_frames
@@ -734,14 +938,14 @@ def run_bench(plan: Plan, *, with_e2e: bool = True, with_levers: bool = False) -
         work += 20 * (plan.frames + plan.video_frames)
     progress = Progress(work)
     try:
-        report = _measure(plan, progress, with_e2e=with_e2e, with_levers=with_levers)
+        report = _measure(plan, progress, with_e2e=with_e2e, with_levers=with_levers, shm=shm)
     finally:
         progress.close()
     return report
 
 
 def _measure(
-    plan: Plan, progress: Progress, *, with_e2e: bool, with_levers: bool
+    plan: Plan, progress: Progress, *, with_e2e: bool, with_levers: bool, shm: bool
 ) -> dict[str, Any]:
     sets = frame_sets(plan, progress)
     report: dict[str, Any] = {
@@ -776,8 +980,9 @@ def _measure(
             "fast_stats": _stats(project.detector),
         }
     if with_e2e:
-        report["e2e"] = _end_to_end(sets, progress)
-        report["throughput"] = _throughput(plan, progress)
+        report["e2e"] = _end_to_end(sets, progress, shm=shm)
+        report["throughput"] = _throughput(plan, progress, shm=shm)
+        report["e2e_setup"] = _e2e_setup(report, shm)
     if with_levers:
         report["levers"] = levers(sets, progress)
     report["goals"] = goals(report)
@@ -797,59 +1002,78 @@ def _stats(detector: FastDetector) -> dict[str, int]:
     }
 
 
-def _end_to_end(sets: Sequence[FrameSet], progress: Progress) -> dict[str, Any]:
+def _end_to_end(sets: Sequence[FrameSet], progress: Progress, *, shm: bool) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for frame_set in sets:
         if frame_set.name not in (VIDEO_RESOLUTION, "video"):
             continue
-        detectors = {
-            "opencv": _opencv_detector(),
-            "fast": _fast_detector(),
-            "none": NoDetector(),  # the service's own cost: transport, decode, publish
-        }
-        runs, bare = lockstep(detectors, frame_set.scenes, progress, f"e2e {frame_set.name}")
+        runs, bare, camera = lockstep(
+            E2E_DETECTORS, frame_set.scenes, progress, f"e2e {frame_set.name}", shm=shm
+        )
         entry: dict[str, Any] = {}
         for name, run in runs.items():
-            summary = run.tally.summary()
-            times = np.asarray(run.latencies_ms)
-            summary["median_ms"] = _r(np.median(times))
-            summary["mean_ms"] = _r(times.mean())
-            summary["p99_ms"] = _r(np.percentile(times, 99))
-            entry[name] = summary
+            entry[name] = _e2e_summary(run)
         bare_times = np.asarray(bare)
         entry["baseline_detection"] = {
             "median_ms": _r(np.median(bare_times)),
             "mean_ms": _r(bare_times.mean()),
             "p99_ms": _r(np.percentile(bare_times, 99)),
         }
-        fast = detectors["fast"]
-        if isinstance(fast, FastDetector):
-            entry["fast_stats"] = _stats(fast)
-            fast.close()
+        entry["camera"] = camera
         out[frame_set.name] = entry
     return out
 
 
-class NoDetector:
-    """Finds nothing, instantly: the end-to-end time of a service using it is the service's
-    and Zenoh's own cost (payload copy, decoding, grey conversion, publishing, transport)."""
+def _e2e_setup(report: dict[str, Any], shm: bool) -> dict[str, Any]:
+    """How the end-to-end figures were made; ``shm`` is whether every frame really went from
+    shared memory (requested and available)."""
+    cameras = [entry["camera"] for entry in report["e2e"].values()]
+    cameras += [run["camera"] for run in report["throughput"].values()]
+    fallbacks = sorted({c["unavailable"] for c in cameras if c.get("unavailable")})
+    used = shm and all(c["shm"] for c in cameras)
+    plain = sum(c.get("plain_frames", 0) for c in cameras) if used else None
+    return {
+        "services": "zenoh-perception run, one subprocess per detector (--detector "
+        + " / ".join(E2E_DETECTORS)
+        + ")",
+        "transport": "Zenoh peers over tcp/127.0.0.1, multicast scouting off",
+        "shm_requested": shm,
+        "shm": used,
+        "camera_put": (
+            "shared memory (frame written into its buffer before the clock starts"
+            + (f"; {plain} frames as plain bytes, every buffer held" if plain else "")
+            + ")"
+            if used
+            else "plain bytes (Zenoh copies them on put, inside the timed interval)"
+        ),
+        "shm_fallback": fallbacks[0] if fallbacks else None,
+        "shm_plain_frames": plain,  # frames put as bytes although SHM was in use (pool held)
+        "timed": "put -> tag received (lockstep; bench process = camera + consumer)",
+        "overhead": "end to end - the record's detect_ms (transport, copy, decode, grey "
+        "conversion, selection, publish)",
+    }
 
-    def detect(self, gray: Image) -> list[Detection]:
-        del gray
-        return []
+
+def _e2e_summary(run: Lockstep) -> dict[str, Any]:
+    """Recall / FP from the records, e2e times, and what the records say the time went to."""
+    summary = run.tally.summary()
+    times = np.asarray(run.latencies_ms)
+    summary["median_ms"] = _r(np.median(times))
+    summary["mean_ms"] = _r(times.mean())
+    summary["p99_ms"] = _r(np.percentile(times, 99))
+    summary["records"] = sum(t is not None for t in run.timing)
+    for key in ("detect_ms", "convert_ms", "decode_ms", "queue_ms", "latency_ms"):
+        values = np.asarray([t[key] for t in run.timing if t is not None], dtype=np.float64)
+        name = "in_service" if key == "latency_ms" else key.removesuffix("_ms")
+        summary[f"{name}_median_ms"] = _r(np.median(values)) if values.size else None
+        summary[f"{name}_mean_ms"] = _r(values.mean()) if values.size else None
+    overhead = np.asarray(run.overhead_ms(), dtype=np.float64)
+    summary["overhead_median_ms"] = _r(np.median(overhead)) if overhead.size else None
+    summary["overhead_mean_ms"] = _r(overhead.mean()) if overhead.size else None
+    return summary
 
 
-def _opencv_detector() -> Detector:
-    from zenoh_perception.detection import make_detector  # noqa: PLC0415 - keep one factory
-
-    return make_detector("opencv", DICTIONARY)
-
-
-def _fast_detector() -> Detector:
-    return FastDetector(DICTIONARY)
-
-
-def _throughput(plan: Plan, progress: Progress) -> dict[str, Any]:
+def _throughput(plan: Plan, progress: Progress, *, shm: bool) -> dict[str, Any]:
     generator = SceneGenerator(
         CameraModel.named(THROUGHPUT_RESOLUTION), seed=plan.seed + 30, effects=Effects.realistic()
     )
@@ -857,18 +1081,16 @@ def _throughput(plan: Plan, progress: Progress) -> dict[str, Any]:
     frames = raw_frames(generator.drive(count, fps=THROUGHPUT_HZ, n_tags=4, n_distractors=2))
     progress.step("throughput frames", 30)
     out: dict[str, Any] = {}
-    for name, make in (("opencv", _opencv_detector), ("fast", _fast_detector)):
-        detector = make()
+    for name in E2E_DETECTORS:
         out[name] = throughput(
-            detector,
+            name,
             frames,
             rate_hz=THROUGHPUT_HZ,
             seconds=plan.throughput_s,
             progress=progress,
             label=f"60 Hz {name}",
+            shm=shm,
         )
-        if isinstance(detector, FastDetector):
-            detector.close()
     return out
 
 
@@ -1043,25 +1265,51 @@ def format_report(report: dict[str, Any]) -> str:
                     _fmt(bare["p99_ms"]),
                     "-",
                     "-",
+                    "-",
+                    "-",
+                    "-",
                 ]
             )
-            for who in ("opencv", "fast", "none"):
+            for who in E2E_DETECTORS:
                 s = entry[who]
                 rows.append(
                     [
                         name,
-                        who if who != "none" else "no detector (overhead)",
+                        f"service {who}",
                         _fmt(s["median_ms"]),
                         _fmt(s["mean_ms"]),
                         _fmt(s["p99_ms"]),
+                        _fmt(s["detect_median_ms"]),
+                        _fmt(s["overhead_median_ms"]),
+                        _fmt(s["overhead_mean_ms"]),
                         f"{s['recall']:.3f}",
                         str(s["false_positives"]),
                     ]
                 )
+        setup = report.get("e2e_setup", {})
+        note = f"; camera put: {setup['camera_put']}" if "camera_put" in setup else ""
+        if setup.get("shm_fallback"):
+            note += f" (shared memory unavailable: {setup['shm_fallback']})"
         parts.append(
-            "End to end through the service (put -> tag, lockstep, loopback Zenoh peers; the bare"
-            " baseline ran on each frame in turn with the services)\n"
-            + _table(["frames", "detector", "median ms", "mean ms", "p99 ms", "recall", "FP"], rows)
+            "End to end through the service (put -> tag, lockstep; each service is its own"
+            " `zenoh-perception run` process, Zenoh peers over loopback; the bare baseline ran"
+            f" on each frame in turn with the services{note}; overhead = e2e - the service's"
+            " detect_ms)\n"
+            + _table(
+                [
+                    "frames",
+                    "detector",
+                    "median ms",
+                    "mean ms",
+                    "p99 ms",
+                    "detect med",
+                    "overhead med",
+                    "overhead mean",
+                    "recall",
+                    "FP",
+                ],
+                rows,
+            )
         )
     if "throughput" in report:
         rows = []
@@ -1080,7 +1328,8 @@ def format_report(report: dict[str, Any]) -> str:
                 ]
             )
         parts.append(
-            "Throughput (frames published at a fixed rate)\n"
+            "Throughput (frames published at a fixed rate to a service process; latency ="
+            " receive -> publish in the service)\n"
             + _table(
                 [
                     "detector",
@@ -1247,8 +1496,32 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument(
         "--no-e2e", action="store_true", help="skip the service (Zenoh) measurements"
     )
+    parser.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="end to end: the camera puts plain bytes (Zenoh copies them on put) instead of "
+        "frames from a shared-memory buffer",
+    )
     parser.add_argument("--levers", action="store_true", help="also measure each design lever")
     parser.set_defaults(handler=main)
+
+
+@contextmanager
+def _sigterm_exits() -> Iterator[None]:
+    """SIGTERM raises SystemExit meanwhile, so the ``finally`` blocks stop the service
+    processes (Python's default SIGTERM would end the bench and leave them running)."""
+
+    def exit_now(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, exit_now)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -1262,13 +1535,10 @@ def main(args: argparse.Namespace) -> int:
         changes["seed"] = args.seed
     if changes:
         plan = replace(plan, **changes)
-    service_log = logging.getLogger("zenoh_perception.service")
-    level = service_log.level
-    service_log.setLevel(logging.WARNING)  # one start / stop line per run would litter the bar
-    try:
-        report = run_bench(plan, with_e2e=not args.no_e2e, with_levers=args.levers)
-    finally:
-        service_log.setLevel(level)
+    with _sigterm_exits():
+        report = run_bench(
+            plan, with_e2e=not args.no_e2e, with_levers=args.levers, shm=not args.no_shm
+        )
     print(format_report(report))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
