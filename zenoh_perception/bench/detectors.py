@@ -2,9 +2,10 @@
 
 Baseline: what users would otherwise run, BGRA -> BGR (``cv2.cvtColor``) then
 ``cv2.aruco.ArucoDetector(DICT_4X4_50, DetectorParameters()).detectMarkers`` on the BGR image;
-its time includes the conversion. Project: BGRA -> grey then :class:`FastDetector`, timed the
-same way. Both run on the same generated frames (:mod:`zenoh_perception.scene`, exact ground
-truth), one frame after the other (alternating which goes first), in one process.
+its time includes the conversion. Project: BGRA -> grey then :class:`FastDetector`, then the
+colour check of :mod:`zenoh_perception.detect.colour` (as the service does), timed the same
+way. Both run on the same generated frames (:mod:`zenoh_perception.scene`, exact ground truth),
+one frame after the other (alternating which goes first), in one process.
 
 Frame sets (realistic effects: blur, motion blur, noise, lighting, clutter):
 
@@ -75,6 +76,7 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception import __version__
+from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
 from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.fast_detector import FastDetector, FastDetectorConfig
@@ -267,17 +269,24 @@ class Baseline:
 
 
 class Project:
-    """BGRA -> grey, then a :class:`FastDetector` (one per frame set, like one per stream)."""
+    """BGRA -> grey, then a :class:`FastDetector` (one per frame set, like one per stream),
+    then the colour check with ``max_chroma`` (0: off), as the service's pipeline does."""
 
     name = "fast"
 
-    def __init__(self, config: FastDetectorConfig | None = None) -> None:
+    def __init__(
+        self, config: FastDetectorConfig | None = None, max_chroma: float = DEFAULT_MAX_CHROMA
+    ) -> None:
         self.detector = FastDetector(DICTIONARY, config)
+        self._max_chroma = max_chroma
+        self._chroma = ChromaCheck(aruco_dictionary(DICTIONARY))
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
         gray = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
         detections = self.detector.detect(gray)
+        if self._max_chroma > 0 and detections:
+            detections = self._chroma.keep(image, detections, self._max_chroma)
         elapsed = (time.perf_counter() - start) * 1e3
         return detections, elapsed
 
@@ -856,8 +865,8 @@ def _levers() -> list[tuple[str, Callable[[], Any]]]:
     read = {"perspectiveRemovePixelPerCell": 8, "errorCorrectionRate": 1.0}
     base = FastDetectorConfig()
 
-    def fast(**changes: Any) -> Callable[[], Any]:
-        return lambda: Project(replace(base, **changes))
+    def fast(chroma: float = DEFAULT_MAX_CHROMA, **changes: Any) -> Callable[[], Any]:
+        return lambda: Project(replace(base, **changes), chroma)
 
     return [
         ("baseline: BGRA->BGR, default parameters", Baseline),
@@ -887,12 +896,14 @@ def _levers() -> list[tuple[str, Callable[[], Any]]]:
             "5 px window + 8 px/cell + 1-bit correction",
             lambda: Baseline(_params(**one, **read), grey=True),
         ),
-        ("+ refined corners, model-fit check (no tracking)", fast(track=False)),
+        ("+ refined corners, model-fit check (no tracking)", fast(0.0, track=False)),
+        ("+ colour check (no tracking)", fast(track=False)),
         (f"+ tracking, full scan every {base.full_scan_period} frames (project)", fast()),
         ("tracking, full scan every 4 frames", fast(full_scan_period=4)),
         ("tracking, full scan every 16 frames", fast(full_scan_period=16)),
         ("no corner refinement (tracking on)", fast(refine=False)),
         ("no model-fit check (tracking on)", fast(verify=False)),
+        ("no colour check (tracking on)", fast(0.0)),
         ("scan shared by 2 threads (no tracking)", fast(track=False, scan_threads=2)),
         ("scan shared by 2 threads + tracking", fast(scan_threads=2)),
     ]
