@@ -36,6 +36,7 @@ Model fit (:func:`fit_marker`)
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Final
@@ -69,6 +70,20 @@ _PROFILE_SAMPLES: Final = (9, 17)  # min, max samples per profile
 _MIN_EDGE_CONTRAST: Final = 8.0  # grey levels between border and quiet zone
 _MIN_FIT_CONTRAST: Final = 10.0  # grey levels between black and white in the model fit
 _MAX_SHIFT_CELLS: Final = 0.75  # a refinement that moves a corner further is refused
+_NO_BLUR: Final = -1000  # blur buckets of a model cache key when no blur was measured
+_BUCKET: Final = math.log(1.03)  # models are cached by cell size and blur in 3 % steps
+_SMALLEST_SIGMA_CELLS: Final = 1e-3
+# The bucket of a blur width sigma (cells) is round(log(sigma) / _BUCKET). The model fit
+# blurs by sigma = exp(k _BUCKET) * f pixels (k: bucket of the measured blur, f: one of
+# FIT_BLUR_FACTORS) or by sigma = s (one of FIT_SIGMAS_PX), on cells of exp(b _BUCKET) pixels
+# (b: bucket of the cell size): the bucket of sigma in cells is round(k - b + log(f) /
+# _BUCKET) = k - b + round(log(f) / _BUCKET), or round(log(s) / _BUCKET) - b, exactly: the
+# fractional parts of log(f) / _BUCKET and log(s) / _BUCKET are at least 0.016 from 1/2, far
+# more than the rounding errors of the logarithms (1e-12), and integer arithmetic replaces
+# a logarithm per sigma (tests/test_refine_reference.py checks it against the logarithms).
+_FACTOR_BUCKETS: Final = [round(math.log(f) / _BUCKET) for f in FIT_BLUR_FACTORS]
+_SIGMA_BUCKETS: Final = [round(math.log(s) / _BUCKET) for s in FIT_SIGMAS_PX]
+_LOWEST_BUCKET: Final = round(math.log(_SMALLEST_SIGMA_CELLS) / _BUCKET)
 
 
 def _phi(z: Floats) -> Floats:
@@ -83,17 +98,30 @@ def _phi(z: Floats) -> Floats:
     return out
 
 
-# cv2's stubs demand a second map; OpenCV takes None when the first holds (x, y) pairs.
-_remap: Any = cv2.remap
+_REMAP_WIDTH: Final = 32766  # cv2.remap wants fewer than SHRT_MAX columns
 
 
-def _sample(gray: Gray, points: npt.NDArray[np.floating[Any]]) -> Floats:
-    """Bilinear samples of ``gray`` at (N, 2) continuous pixel coordinates (the values are
-    rounded to integers, as OpenCV does for uint8 images)."""
-    xy = points.astype(np.float32).reshape(1, -1, 2)
-    values = _remap(gray, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    out: Floats = np.asarray(values, dtype=np.float64).reshape(-1)
+def _remap(gray: Gray, x: npt.NDArray[np.float32], y: npt.NDArray[np.float32]) -> Floats:
+    """Bilinear samples of ``gray`` at the (rows, columns) coordinates ``x``, ``y`` (rounded
+    to integers, as OpenCV does for uint8 images). Sampled as one row when they fit in one:
+    OpenCV splits a remap by rows over threads, which costs more than it saves on the few
+    thousand points of a frame's markers."""
+    shape = x.shape
+    if x.size <= _REMAP_WIDTH:
+        x, y = x.reshape(1, -1), y.reshape(1, -1)
+    samples = cv2.remap(gray, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out: Floats = np.asarray(samples, dtype=np.float64).reshape(shape)
     return out
+
+
+def _sample_mapped(gray: Gray, homographies: Floats, points_t: Floats) -> Floats:
+    """(m, n) bilinear samples of ``gray`` at the (3, n) homogeneous ``points_t`` mapped by
+    each of the (m, 3, 3) ``homographies``: one matrix product and one ``cv2.remap``."""
+    m = len(homographies)
+    mapped = (homographies.reshape(3 * m, 3) @ points_t).reshape(m, 3, -1)
+    x = (mapped[:, 0] / mapped[:, 2]).astype(np.float32)
+    y = (mapped[:, 1] / mapped[:, 2]).astype(np.float32)
+    return _remap(gray, x, y)
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,8 +173,9 @@ def refine_many(
     """:func:`refine_corners` for several markers at once: each iteration samples all the
     markers still moving with one ``cv2.remap`` and a few numpy calls (their fixed cost is
     what a single marker pays for)."""
-    starts = [np.asarray(q, dtype=np.float64).reshape(4, 2).tolist() for q in quads]
-    current: list[list[list[float]]] = [list(map(list, q)) for q in starts]
+    # quads as flat lists x0 y0 x1 y1 x2 y2 x3 y3 of Python floats (cheapest to unpack)
+    starts = [np.asarray(q, dtype=np.float64).reshape(8).tolist() for q in quads]
+    current = list(starts)
     reach = [_HALF_PROFILE_PX] * len(quads)
     blur = [(0.0, 0.0)] * len(quads)
     used = [_HALF_PROFILE_PX] * len(quads)
@@ -172,82 +201,86 @@ def refine_many(
                 still.append(i)
         active = still
     out: list[Refined | None] = []
-    for i, start in enumerate(starts):
+    for i, (x0, y0, x1, y1, x2, y2, x3, y3) in enumerate(starts):
         if failed[i]:
             out.append(None)
             continue
-        side = min(math.dist(start[k], start[(k + 1) % 4]) for k in range(4))
-        shift = _largest_move(current[i], start)
-        if shift > _MAX_SHIFT_CELLS * side / cells:
+        hypot = math.hypot
+        side = min(hypot(x1 - x0, y1 - y0), hypot(x2 - x1, y2 - y1))
+        side = min(side, hypot(x3 - x2, y3 - y2), hypot(x0 - x3, y0 - y3))
+        if _largest_move(current[i], starts[i]) > _MAX_SHIFT_CELLS * side / cells:
             out.append(None)
             continue
-        out.append(Refined(np.array(current[i]), blur[i][0], blur[i][1], used[i]))
+        out.append(Refined(np.array(current[i]).reshape(4, 2), blur[i][0], blur[i][1], used[i]))
     return out
 
 
-_ALONG_LIST: Final = [float(t) for t in _ALONG]
-_NEXT: Final = np.array([1, 2, 3, 0])
-_UNIT_PROFILES: dict[int, tuple[Floats, npt.NDArray[np.float32]]] = {}
+_NT: Final = _ALONG.size
+_UNIT_PROFILES: dict[int, tuple[Floats, Floats]] = {}
+# (3 nt, 9): per side, the sums over its profiles of three per-profile values, each weighted
+# by 1, t and t^2 (t: the profile's position along the side)
+_POWERS: Final = np.kron(np.eye(3), np.stack([np.ones(_NT), _ALONG, _ALONG * _ALONG], axis=1))
 
 
-def _profile_plan(ns: int) -> tuple[Floats, npt.NDArray[np.float32]]:
-    """For ``ns`` samples per profile: the (4 * nt * ns, 12) matrix turning the 12 side
-    vectors (4 start corners, 4 side vectors, 4 half-profile normals) into sample points, and
-    the (ns, 3) matrix giving the mean of the two samples at each end of a profile and the
-    sum of its samples."""
+def _profile_plan(ns: int) -> tuple[Floats, Floats]:
+    """For ``ns`` samples per profile: the (3, nt * ns) matrix turning a side's start,
+    side vector and half-profile normal (x or y components) into the coordinates of its
+    samples, and the (3, ns) matrix giving the mean of the two samples at each end of a
+    profile and the sum of its samples."""
     plan = _UNIT_PROFILES.get(ns)
     if plan is None:
         unit = np.linspace(-1.0, 1.0, ns)
-        coef = np.zeros((4, _ALONG.size, ns, 12))
-        for side in range(4):
-            coef[side, :, :, side] = 1.0
-            coef[side, :, :, 4 + side] = _ALONG[:, None]
-            coef[side, :, :, 8 + side] = unit[None, :]
-        ends = np.zeros((ns, 3), dtype=np.float32)
-        ends[:2, 0] = 0.5
-        ends[-2:, 1] = 0.5
-        ends[:, 2] = 1.0
-        plan = (coef.reshape(-1, 12), ends)
+        coef = np.zeros((3, _NT, ns))
+        coef[0] = 1.0
+        coef[1] = _ALONG[:, None]
+        coef[2] = unit[None, :]
+        ends = np.zeros((3, ns))
+        ends[0, :2] = 0.5
+        ends[1, -2:] = 0.5
+        ends[2, :] = 1.0
+        plan = (coef.reshape(3, -1), ends)
         _UNIT_PROFILES[ns] = plan
     return plan
 
 
-def _largest_move(a: list[list[float]], b: list[list[float]]) -> float:
-    return max(max(abs(p[0] - q[0]), abs(p[1] - q[1])) for p, q in zip(a, b, strict=True))
+def _largest_move(a: list[float], b: list[float]) -> float:
+    """Largest coordinate change between two flat quads."""
+    move: float = max(map(abs, map(operator.sub, a, b)))
+    return move
 
 
 _Side = tuple[float, float, float, float, float, float, float]  # x0 y0 dx dy nx ny half
 
 
-def _sides(quad: list[list[float]], cells: int, reach_px: float) -> list[_Side] | None:
+def _sides(quad: list[float], cells: int, reach_px: float) -> list[_Side] | None:
     """Per side: start, direction, outward unit normal and half profile length."""
-    area = 0.0
-    for i in range(4):
-        (x0, y0), (x1, y1) = quad[i], quad[(i + 1) % 4]
-        area += x0 * y1 - y0 * x1
+    x0, y0, x1, y1, x2, y2, x3, y3 = quad
+    area = (x0 * y1 - y0 * x1) + (x1 * y2 - y1 * x2) + (x2 * y3 - y2 * x3) + (x3 * y0 - y3 * x0)
     # outward normals: (u_y, -u_x) for the clockwise (y down) order cv2.aruco reports
     sign = 1.0 if area > 0 else -1.0
     sides: list[_Side] = []
-    for i in range(4):
-        (x0, y0), (x1, y1) = quad[i], quad[(i + 1) % 4]
-        dx, dy = x1 - x0, y1 - y0
+    for xa, ya, xb, yb in ((x0, y0, x1, y1), (x1, y1, x2, y2), (x2, y2, x3, y3), (x3, y3, x0, y0)):
+        dx, dy = xb - xa, yb - ya
         length = math.hypot(dx, dy)
         if length < 4.0:
             return None
         nx, ny = sign * dy / length, -sign * dx / length
-        sides.append((x0, y0, dx, dy, nx, ny, min(length * _HALF_PROFILE_CELLS / cells, reach_px)))
+        sides.append((xa, ya, dx, dy, nx, ny, min(length * _HALF_PROFILE_CELLS / cells, reach_px)))
     return sides
 
 
 def _refine_batch(
-    gray: Gray, quads: list[list[list[float]]], cells: int, reaches: list[float]
-) -> list[tuple[list[list[float]], tuple[float, float], float] | None]:
+    gray: Gray, quads: list[list[float]], cells: int, reaches: list[float]
+) -> list[tuple[list[float], tuple[float, float], float] | None]:
     """One pass for each quad: profiles across the four sides, one line per side, corners
     where they meet.
 
-    Geometry is done with Python floats and the profiles of all quads with a handful of
-    numpy calls on one array: a numpy call costs microseconds whatever its size, far more
-    than the arithmetic on a few points (this runs for every candidate and tracked marker).
+    Per-marker geometry is done with Python floats; the profiles of all quads are sampled
+    with one matrix product and one ``cv2.remap``, and reduced to the few sums each side's
+    line fit needs with a dozen numpy calls on (profiles,) arrays and one more product: a
+    numpy call costs microseconds whatever its size, far more than the arithmetic on a few
+    points, and a Python loop over every profile costs more than both (this runs for every
+    candidate and tracked marker).
     """
     geometry = [_sides(q, cells, r) for q, r in zip(quads, reaches, strict=True)]
     valid = [g for g in geometry if g is not None]
@@ -257,80 +290,79 @@ def _refine_batch(
     lo_n, hi_n = _PROFILE_SAMPLES
     ns = min(max(2 * math.ceil(widest / _PROFILE_STEP_PX) + 1, lo_n), hi_n)
     coef, ends = _profile_plan(ns)
-    vectors = np.array(
-        [
-            [side[0:2] for side in g]
-            + [side[2:4] for side in g]
-            + [(side[6] * side[4], side[6] * side[5]) for side in g]
-            for g in valid
-        ]
-    )  # (m, 12, 2): 4 start corners, 4 side vectors, 4 half-profile normals
-    points = np.matmul(coef, vectors).astype(np.float32).reshape(1, -1, 2)
-    samples = _remap(gray, points, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    v = np.asarray(samples, dtype=np.float32).reshape(-1, ns)  # (m * 4 * nt, ns)
-    # per profile: inside (border) level, outside (quiet zone) level, sum, sum of squares;
-    # the normalised profile f = (v - low) / span is never formed (fewer numpy calls)
-    low, high, v_sum = (v @ ends).T.tolist()
-    v_sq = np.einsum("ij,ij->i", v, v).tolist()
-    out: list[tuple[list[list[float]], tuple[float, float], float] | None] = []
-    block = 0
-    per_quad = 4 * len(_ALONG_LIST)
-    for g in geometry:
-        if g is None:
+    # per side, x components then y: start, side vector, half-profile normal
+    xs: list[float] = []
+    ys: list[float] = []
+    for g in valid:
+        for x0, y0, dx, dy, nx, ny, half in g:
+            xs += (x0, dx, half * nx)
+            ys += (y0, dy, half * ny)
+    coords = (np.array(xs + ys).reshape(-1, 3) @ coef).astype(np.float32)  # (2 * sides, nt ns)
+    x, y = coords.reshape(2, len(xs) // 3, -1)
+    v = _remap(gray, x, y).reshape(-1, ns)  # (profiles, ns)
+    # per profile: inside (border) level, outside (quiet zone) level, sum, sum of squares
+    low, high, v_sum = ends @ v.T
+    v_sq = np.einsum("ij,ij->i", v, v)
+    span = high - low
+    # per side and profile: measured (enough contrast), and with f = (v - low) / span the
+    # normalised profile (never formed: fewer numpy calls), f_sum and f_sum - f_sq where
+    # measured, else 0: a normalised step integrates to its position, f (1 - f) to
+    # sigma / sqrt(pi)
+    per_side = np.empty((len(v) // _NT, 3, _NT))
+    measured, steps, spreads = per_side.transpose(1, 0, 2)
+    np.greater(span.reshape(-1, _NT), _MIN_EDGE_CONTRAST, out=measured)
+    inverse = measured / np.maximum(span, _MIN_EDGE_CONTRAST).reshape(-1, _NT)
+    centred_sum = v_sum - ns * low
+    np.multiply(centred_sum.reshape(-1, _NT), inverse, out=steps)
+    centred_sq = v_sq - low * (v_sum + centred_sum)
+    np.subtract(steps, centred_sq.reshape(-1, _NT) * (inverse * inverse), out=spreads)
+    sums = (per_side.reshape(-1, 3 * _NT) @ _POWERS).tolist()  # per side: 9 sums
+    out: list[tuple[list[float], tuple[float, float], float] | None] = []
+    k = 0
+    for sides in geometry:
+        if sides is None:
             out.append(None)
             continue
-        out.append(_lines_to_corners(g, ns, block, low=low, high=high, v_sum=v_sum, v_sq=v_sq))
-        block += per_quad
+        out.append(_lines_to_corners(sides, ns, sums[k : k + 4]))
+        k += 4
     return out
 
 
 def _lines_to_corners(
-    sides: list[_Side],
-    ns: int,
-    first: int,
-    *,
-    low: list[float],
-    high: list[float],
-    v_sum: list[float],
-    v_sq: list[float],
-) -> tuple[list[list[float]], tuple[float, float], float] | None:
-    """Edge positions of one quad's profiles -> a line per side -> corners, and blur."""
-    nt = len(_ALONG_LIST)
-    step_unit = 2.0 / (ns - 1)
+    sides: list[_Side], ns: int, sums: list[list[float]]
+) -> tuple[list[float], tuple[float, float], float] | None:
+    """One quad's profile sums -> a line per side -> corners, and blur.
+
+    ``sums``, per side, over its measured profiles: the number of profiles and the sums of
+    their t and t^2, the sums of f_sum and t f_sum, then (at 6) the sum of f_sum - f_sq
+    (f: the normalised profile, t: its position along the side).
+    """
     lines: list[tuple[float, float, float, float]] = []
-    weights = [0.0, 0.0]  # x (left / right sides), y (top / bottom)
-    spreads = [0.0, 0.0]
+    weight_x = weight_y = spread_x = spread_y = 0.0  # left / right sides, top / bottom
+    unit = 2.0 / (ns - 1)
     for i in range(4):
         x0, y0, dx, dy, nx, ny, half = sides[i]
-        step = half * step_unit
-        sw = st = stt = so = sto = 0.0
-        for k in range(nt):
-            j = first + i * nt + k
-            span = high[j] - low[j]
-            if span <= _MIN_EDGE_CONTRAST:
-                continue
-            t = _ALONG_LIST[k]
-            # a normalised step integrates to its position; f (1 - f) to sigma / sqrt(pi)
-            f_sum = (v_sum[j] - ns * low[j]) / span
-            f_sq = (v_sq[j] - 2.0 * low[j] * v_sum[j] + ns * low[j] * low[j]) / (span * span)
-            offset = step * (ns - 0.5 - f_sum) - half
-            sw += 1.0
-            st += t
-            stt += t * t
-            so += offset
-            sto += offset * t
-            spreads[(i + 1) % 2] += (f_sum - f_sq) * step
+        sw, st, stt, sf, stf, _, spread, _, _ = sums[i]
         if sw < 3.0:
             return None
+        # an edge at offset o from the side has f_sum = ns - 0.5 - (o + half) / step
+        step = half * unit
+        base = step * (ns - 0.5) - half
+        so = base * sw - step * sf
+        sto = base * st - step * stf
         # offset = a + b t along the side: the refined line
         b = (sw * sto - st * so) / (sw * stt - st * st)
         a = (so - b * st) / sw
         lines.append((x0 + a * nx, y0 + a * ny, dx + b * nx, dy + b * ny))
-        weights[(i + 1) % 2] += sw
-    corners: list[list[float]] = []
-    for i in range(4):  # corner i is where side i-1 meets side i
-        px, py, ux, uy = lines[i - 1]
-        qx, qy, vx, vy = lines[i]
+        if i & 1:
+            weight_x += sw
+            spread_x += spread * step
+        else:
+            weight_y += sw
+            spread_y += spread * step
+    corners: list[float] = []
+    px, py, ux, uy = lines[3]
+    for qx, qy, vx, vy in lines:  # corner i is where side i-1 meets side i
         cross = ux * vy - uy * vx
         if abs(cross) < 1e-6 * (ux * ux + uy * uy):
             return None
@@ -338,10 +370,13 @@ def _lines_to_corners(
         x, y = px + t * ux, py + t * uy
         if not (math.isfinite(x) and math.isfinite(y)):
             return None
-        corners.append([x, y])
-    root_pi = math.sqrt(math.pi)
-    blur = (root_pi * spreads[0] / weights[0], root_pi * spreads[1] / weights[1])
-    return corners, blur, min(side[6] for side in sides)
+        corners += (x, y)
+        px, py, ux, uy = qx, qy, vx, vy
+    blur = (_ROOT_PI * spread_x / weight_x, _ROOT_PI * spread_y / weight_y)
+    return corners, blur, min(sides[0][6], sides[1][6], sides[2][6], sides[3][6])
+
+
+_ROOT_PI: Final = math.sqrt(math.pi)
 
 
 @dataclass(frozen=True, slots=True)
@@ -382,14 +417,17 @@ class MarkerModel:
     """
 
     _CACHE_LIMIT: Final = 4096
-    _BUCKET: Final = math.log(1.03)
+    _BUCKET: Final = _BUCKET
 
     def __init__(self, dictionary: Any) -> None:
         self.dictionary = dictionary
         self.bits = int(dictionary.markerSize)
         self.cells = self.bits + 2  # with the black border
-        self._darkness: dict[int, Floats] = {}
-        self._coverages: dict[int, Floats] = {}
+        # darkness of each id and blurred coverages of each blur width (_coverage_rows_of),
+        # as rows of a table gathered with one numpy call
+        self._dark_rows: dict[int, int] = {}
+        self._dark_table: Floats = np.zeros((0, self.cells + 2, self.cells + 2))
+        self._coverage_rows: dict[int, int] = {}
         self._stats: dict[tuple[int, int, int, int, int], _Models] = {}
         total = self.cells + 2  # with the white quiet ring
         per_axis = total * FIT_SAMPLES_PER_CELL
@@ -398,7 +436,13 @@ class MarkerModel:
         gx, gy = np.meshgrid(self._axis, self._axis)
         self._grid = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32).reshape(-1, 1, 2)
         self._grid_h = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
+        self._grid_t = np.ascontiguousarray(self._grid_h.T)  # (3, N)
         self._edges = np.arange(total + 1, dtype=np.float64) - 1.0  # cell boundaries
+        # sample - cell edge offsets: few distinct values (the samples are on a grid)
+        offsets = self._axis[:, None] - self._edges[None, :]
+        self._offsets, index = np.unique(offsets, return_inverse=True)
+        self._offset_index = index.reshape(offsets.shape)
+        self._coverage_table: Floats = np.zeros((64, per_axis, total))  # grows by doubling
         inner = (self._axis > 1.0) & (self._axis < self.cells - 1.0)
         self.code_mask = (inner[:, None] & inner[None, :]).ravel()  # samples on the code cells
         # samples in the middle half of each border cell: flat black, they measure the noise
@@ -411,6 +455,8 @@ class MarkerModel:
         self.subsets = np.stack(
             [np.ones(self.code_mask.size), self.code_mask, self.flat_mask], axis=1
         ).astype(np.float64)
+        self._subset_rows = np.ascontiguousarray(self.subsets.T)  # (3, N)
+        self._mean_weights = np.full(self.code_mask.size, 1.0 / self.code_mask.size)
         self.code_count = int(self.code_mask.sum())
         self.flat_count = int(self.flat_mask.sum())
         size = float(self.cells)
@@ -418,18 +464,25 @@ class MarkerModel:
         # cell centres of the marker (border included), for reading its bits
         cy, cx = np.mgrid[0 : self.cells, 0 : self.cells] + 0.5
         self.cell_centres = np.stack([cx.ravel(), cy.ravel(), np.ones(cx.size)], axis=1)
+        self._centres_t = np.ascontiguousarray(self.cell_centres.T)  # (3, cells^2)
         self._black: dict[int, list[bool]] = {}
 
     def darkness(self, tag_id: int) -> Floats:
         """(cells + 2)^2 absorbance of ``tag_id``: 0 white (quiet ring, white bits), 1 black."""
-        cached = self._darkness.get(tag_id)
-        if cached is not None:
-            return cached
-        image = cv2.aruco.generateImageMarker(self.dictionary, tag_id, self.cells, borderBits=1)
-        out = np.zeros((self.cells + 2, self.cells + 2), dtype=np.float64)
-        out[1:-1, 1:-1] = 1.0 - np.asarray(image, dtype=np.float64) / 255.0
-        self._darkness[tag_id] = out
+        row = self._dark_row(tag_id)  # may grow the table: before indexing it
+        out: Floats = self._dark_table[row]
         return out
+
+    def _dark_row(self, tag_id: int) -> int:
+        """Row of ``tag_id``'s darkness in the darkness table (added on first use)."""
+        row = self._dark_rows.get(tag_id)
+        if row is None:
+            image = cv2.aruco.generateImageMarker(self.dictionary, tag_id, self.cells, borderBits=1)
+            dark = np.zeros((1, self.cells + 2, self.cells + 2), dtype=np.float64)
+            dark[0, 1:-1, 1:-1] = 1.0 - np.asarray(image, dtype=np.float64) / 255.0
+            row = self._dark_rows[tag_id] = len(self._dark_table)
+            self._dark_table = np.concatenate([self._dark_table, dark])
+        return row
 
     def blurred(self, tag_id: int, sigma_x: Floats, sigma_y: Floats) -> Floats:
         """(len(sigma_x), N) reflectance of the blurred marker at the fit's sample points.
@@ -437,25 +490,63 @@ class MarkerModel:
         ``sigma_x`` / ``sigma_y``: blur widths in cells along the marker's own axes (they differ
         on a slanted marker). The world beyond the quiet ring counts as white.
         """
-        dark = self.darkness(tag_id)
-        wx = np.stack([self._coverage(float(s)) for s in sigma_x])
-        wy = np.stack([self._coverage(float(s)) for s in sigma_y])
-        blurred = np.matmul(np.matmul(wy, dark), wx.transpose(0, 2, 1))
-        out: Floats = 1.0 - blurred.reshape(len(sigma_x), -1)
+        step = self._BUCKET
+        buckets = [
+            round(math.log(max(float(s), _SMALLEST_SIGMA_CELLS)) / step)
+            for s in (*sigma_x, *sigma_y)
+        ]
+        rows = self._coverage_rows_of(buckets)
+        wx, wy = self._coverage_table[rows].reshape(
+            2, len(sigma_x), *self._coverage_table.shape[1:]
+        )
+        darkness = self.darkness(tag_id)
+        out: Floats = 1.0 - np.matmul(np.matmul(wy, darkness), wx.transpose(0, 2, 1)).reshape(
+            len(sigma_x), -1
+        )
         return out
 
-    def _coverage(self, sigma_cells: float) -> Floats:
-        """(S, cells + 2): blurred coverage of each cell at each sample coordinate (cached by
-        blur width in 3 % steps)."""
-        bucket = round(math.log(max(sigma_cells, 1e-3)) / self._BUCKET)
-        cached = self._coverages.get(bucket)
-        if cached is not None:
-            return cached
-        sigma = math.exp(bucket * self._BUCKET)
-        cdf = _phi((self._axis[:, None] - self._edges[None, :]) / sigma)
-        out: Floats = cdf[:, :-1] - cdf[:, 1:]
-        self._coverages[bucket] = out
-        return out
+    _COVERAGE_BLOCK: Final = 16
+
+    def _coverage_rows_of(self, buckets: list[int]) -> list[int]:
+        """Rows of the coverage table for these blur buckets (widths in cells, 3 % steps): the
+        (S, cells + 2) blurred coverage of each cell at each sample coordinate. Missing ones
+        are computed together, with the rest of their block of neighbouring buckets (the
+        blur and size of the markers seen so far are those likely to come)."""
+        rows = self._coverage_rows
+        missing = {b // self._COVERAGE_BLOCK for b in buckets if b not in rows}
+        if missing:
+            size = self._COVERAGE_BLOCK
+            new = [b for block in sorted(missing) for b in range(block * size, (block + 1) * size)]
+            new = [b for b in new if b not in rows]
+            sigma = np.array([math.exp(b * self._BUCKET) for b in new])
+            # the CDF at each (sample - cell edge) offset: _phi of the distinct offsets only
+            cdf = _phi(self._offsets[None, :] / sigma[:, None])[:, self._offset_index]
+            first = len(rows)
+            table = self._coverage_table
+            if first + len(new) > len(table):
+                table = np.zeros((2 * (first + len(new)), *table.shape[1:]))
+                table[:first] = self._coverage_table[:first]
+                self._coverage_table = table
+            table[first : first + len(new)] = cdf[:, :, :-1] - cdf[:, :, 1:]
+            rows.update((b, first + k) for k, b in enumerate(new))
+        return [rows[b] for b in buckets]
+
+    def _key(
+        self, tag_id: int, cell_x: float, cell_y: float, blur: tuple[float, float] | None
+    ) -> tuple[int, int, int, int, int]:
+        """Cache key of :meth:`centred`: id, cell size and blur in 3 % steps."""
+        step = self._BUCKET
+        bx = round(math.log(max(cell_x, 0.5)) / step)
+        by = round(math.log(max(cell_y, 0.5)) / step)
+        if blur is None:
+            return (tag_id, bx, by, _NO_BLUR, _NO_BLUR)
+        return (
+            tag_id,
+            bx,
+            by,
+            round(math.log(max(blur[0], 0.1)) / step),
+            round(math.log(max(blur[1], 0.1)) / step),
+        )
 
     def centred(
         self, tag_id: int, cell_x: float, cell_y: float, blur: tuple[float, float] | None
@@ -463,45 +554,88 @@ class MarkerModel:
         """The centred models (:data:`_Models`) for a marker whose cells measure ``cell_x`` by
         ``cell_y`` pixels: blurred by :data:`FIT_BLUR_FACTORS` times the measured ``blur``
         (x, y in pixels) if given, else isotropically by each of :data:`FIT_SIGMAS_PX`."""
-        step = self._BUCKET
-        bx = round(math.log(max(cell_x, 0.5)) / step)
-        by = round(math.log(max(cell_y, 0.5)) / step)
-        if blur is None:
-            key = (tag_id, bx, by, -1000, -1000)
-        else:
-            key = (
-                tag_id,
-                bx,
-                by,
-                round(math.log(max(blur[0], 0.1)) / step),
-                round(math.log(max(blur[1], 0.1)) / step),
+        return self._models([self._key(tag_id, cell_x, cell_y, blur)])[0]
+
+    def _models(self, keys: list[tuple[int, int, int, int, int]]) -> list[_Models]:
+        """:meth:`centred` for several cache keys; those not cached are computed together."""
+        found = [self._stats.get(key) for key in keys]
+        missing = list(dict.fromkeys(k for k, e in zip(keys, found, strict=True) if e is None))
+        if not missing:
+            return [e for e in found if e is not None]
+        computed = dict(zip(missing, self._compute(missing), strict=True))
+        for key, entry in computed.items():
+            if len(self._stats) >= self._CACHE_LIMIT:
+                self._stats.clear()
+            self._stats[key] = entry
+        return [e if e is not None else computed[k] for k, e in zip(keys, found, strict=True)]
+
+    def _compute(self, keys: list[tuple[int, int, int, int, int]]) -> list[_Models]:
+        """The models of several cache keys (see :meth:`centred`), with a dozen numpy calls
+        for all of them."""
+        # keys with a measured blur (one model per factor) first, then the others (one per
+        # width); per model, its blur buckets (cells) along y and x (see _FACTOR_BUCKETS)
+        measured = [key for key in keys if key[3] != _NO_BLUR]
+        ordered = measured + [key for key in keys if key[3] == _NO_BLUR]
+        ys: list[int] = []
+        xs: list[int] = []
+        sigmas: list[list[float]] = []
+        for _, bx, by, blur_x, blur_y in measured:
+            ys += map((blur_y - by).__add__, _FACTOR_BUCKETS)
+            xs += map((blur_x - bx).__add__, _FACTOR_BUCKETS)
+            widest = math.exp(max(blur_x, blur_y) * self._BUCKET)  # pixels, the larger axis
+            sigmas.append(list(map(widest.__mul__, FIT_BLUR_FACTORS)))
+        for _, bx, by, _, _ in ordered[len(measured) :]:
+            ys += map((-by).__add__, _SIGMA_BUCKETS)
+            xs += map((-bx).__add__, _SIGMA_BUCKETS)
+            sigmas.append(list(FIT_SIGMAS_PX))
+        buckets = ys + xs
+        if min(buckets) < _LOWEST_BUCKET:
+            buckets = [max(b, _LOWEST_BUCKET) for b in buckets]
+        rows = self._coverage_rows_of(buckets)  # may grow the table: before indexing it
+        coverages = self._coverage_table[rows]
+        t = len(xs)
+        edges = self.cells + 2
+        dark_rows = [self._dark_row(key[0]) for key in ordered]  # may grow the table: first
+        darkness = self._dark_table[dark_rows]
+        # the y coverages times the darkness: one product per key (its models share it)
+        split = len(measured) * len(FIT_BLUR_FACTORS)
+        parts = [
+            np.matmul(wy.reshape(len(dark), -1, edges), dark).reshape(-1, edges)
+            for wy, dark in (
+                (coverages[:split], darkness[: len(measured)]),
+                (coverages[split:t], darkness[len(measured) :]),
             )
-        cached = self._stats.get(key)
-        if cached is not None:
-            return cached
-        if blur is None:
-            sigma_x = sigma_y = np.asarray(FIT_SIGMAS_PX, dtype=np.float64)
-        else:
-            factors = np.asarray(FIT_BLUR_FACTORS, dtype=np.float64)
-            sigma_x = math.exp(key[3] * step) * factors
-            sigma_y = math.exp(key[4] * step) * factors
-        m = self.blurred(tag_id, sigma_x / math.exp(bx * step), sigma_y / math.exp(by * step))
-        mc = m - m.mean(axis=1, keepdims=True)
-        sums = (mc @ self.subsets).T.tolist()  # over all, code, flat samples
-        norms = ((mc * mc) @ self.subsets).T.tolist()
-        entry = _Models(
-            centred=mc,
-            norms=[max(v, 1e-12) for v in norms[0]],
-            code_sums=sums[1],
-            code_norms=norms[1],
-            flat_sums=sums[2],
-            flat_norms=norms[2],
-            sigmas=[float(v) for v in np.maximum(sigma_x, sigma_y)],
+            if len(dark)
+        ]
+        wy_dark = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        blurred = np.matmul(wy_dark.reshape(t, -1, edges), coverages[t:].transpose(0, 2, 1))
+        blurred = blurred.reshape(t, -1)
+        # the models m = 1 - blurred, centred over all samples (in place); sums over the
+        # samples as matrix-vector products (numpy's means and matrix-matrix products cost
+        # more on these shapes)
+        mc = np.subtract((blurred @ self._mean_weights)[:, None], blurred, out=blurred)
+        squares = mc * mc
+        everything, code, flat = self._subset_rows
+        stats = np.stack(
+            [squares @ everything, mc @ code, squares @ code, mc @ flat, squares @ flat]
         )
-        if len(self._stats) >= self._CACHE_LIMIT:
-            self._stats.clear()
-        self._stats[key] = entry
-        return entry
+        np.maximum(stats[0], 1e-12, out=stats[0])
+        norms, code_sums, code_norms, flat_sums, flat_norms = stats.tolist()
+        computed: dict[tuple[int, int, int, int, int], _Models] = {}
+        first = 0
+        for key, sigma in zip(ordered, sigmas, strict=True):
+            last = first + len(sigma)
+            computed[key] = _Models(
+                centred=mc[first:last],
+                norms=norms[first:last],
+                code_sums=code_sums[first:last],
+                code_norms=code_norms[first:last],
+                flat_sums=flat_sums[first:last],
+                flat_norms=flat_norms[first:last],
+                sigmas=sigma,
+            )
+            first = last
+        return [computed[key] for key in keys]
 
     def black_cells(self, tag_id: int) -> list[bool]:
         """Which cells of marker ``tag_id`` (border included, row-major) are black."""
@@ -525,11 +659,7 @@ class MarkerModel:
 
     def sample_many(self, gray: Gray, homographies: Floats) -> Floats:
         """(m, N) bilinear samples at the fit's points of m markers (their homographies)."""
-        mapped = np.matmul(self._grid_h, homographies.transpose(0, 2, 1))  # (m, N, 3)
-        xy = (mapped[:, :, :2] / mapped[:, :, 2:3]).astype(np.float32).reshape(1, -1, 2)
-        samples = _remap(gray, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out: Floats = np.asarray(samples, dtype=np.float64).reshape(len(homographies), -1)
-        return out
+        return _sample_mapped(gray, homographies, self._grid_t)
 
 
 def fit_marker(
@@ -556,10 +686,12 @@ FitRequest = tuple[Quad, int, "tuple[float, float] | None"]
 
 
 def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> list[FitResult]:
-    """:func:`fit_marker` for several (corners, id, blur) at once: one ``cv2.remap`` and a
-    few batched numpy calls for all of them."""
+    """:func:`fit_marker` for several (corners, id, blur) at once: one ``cv2.remap`` for all
+    of them, the models not cached yet computed together, then one small matrix product per
+    marker."""
     results: list[FitResult | None] = [None] * len(requests)
-    todo: list[tuple[int, float, _Models]] = []
+    todo: list[tuple[int, float]] = []
+    keys: list[tuple[int, int, int, int, int]] = []
     homographies = []
     for index, (corners, tag_id, measured) in enumerate(requests):
         quad = np.asarray(corners, dtype=np.float64).reshape(4, 2)
@@ -575,26 +707,23 @@ def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> 
         blur = measured
         if blur is not None and (cell_px < MIN_CELL_FOR_BLUR_PX or not min(blur) > 0.0):
             blur = None
-        todo.append((index, cell_px, model.centred(tag_id, cell_x, cell_y, blur)))
+        todo.append((index, cell_px))
+        keys.append(model._key(tag_id, cell_x, cell_y, blur))
         homographies.append(model.homography(quad))
     if todo:
+        all_models = model._models(keys)
         observed = model.sample_many(gray, np.stack(homographies))  # (m, N)
-        width = max(len(item[2].sigmas) for item in todo)
-        stacked = np.zeros((len(todo), width, observed.shape[1]))
-        for k, item in enumerate(todo):
-            stacked[k, : len(item[2].sigmas)] = item[2].centred
-        split = observed[:, :, None] * model.subsets  # (m, N, 3): x over all, code, flat
-        cross_all = np.matmul(stacked, split).tolist()  # (m, nsig, 3): sum(m_k x) per subset
-        sums_all = (observed @ model.subsets).tolist()
-        squares_all = ((observed * observed) @ model.subsets).tolist()
+        split = observed[:, None, :] * model._subset_rows  # (m, 3, N): x over all, code, flat
+        sums_all = split.sum(axis=2).tolist()
+        squares_all = (observed * observed @ model.subsets).tolist()
         n = int(observed.shape[1])
-        for k, (index, cell_px, models) in enumerate(todo):
+        for k, ((index, cell_px), models) in enumerate(zip(todo, all_models, strict=True)):
             results[index] = _score(
                 models,
                 model,
                 cell_px,
                 n,
-                cross=cross_all[k],
+                cross=(models.centred @ split[k].T).tolist(),  # (nsig, 3): sum(m_k x) per subset
                 sums=sums_all[k],
                 squares=squares_all[k],
             )
@@ -663,10 +792,7 @@ def bits_match(
     if not requests:
         return []
     homographies = np.stack([model.homography(np.asarray(q)) for q, _ in requests])
-    mapped = np.matmul(model.cell_centres, homographies.transpose(0, 2, 1))
-    xy = (mapped[:, :, :2] / mapped[:, :, 2:3]).astype(np.float32).reshape(1, -1, 2)
-    samples = _remap(gray, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    values = np.asarray(samples, dtype=np.float64).reshape(len(requests), -1).tolist()
+    values = _sample_mapped(gray, homographies, model._centres_t).tolist()
     out: list[bool] = []
     for row, (_, tag_id) in zip(values, requests, strict=True):
         black = model.black_cells(tag_id)
