@@ -118,9 +118,9 @@ def _sample_mapped(gray: Gray, homographies: Floats, points_t: Floats) -> Floats
     """(m, n) bilinear samples of ``gray`` at the (3, n) homogeneous ``points_t`` mapped by
     each of the (m, 3, 3) ``homographies``: one matrix product and one ``cv2.remap``."""
     m = len(homographies)
-    mapped = (homographies.reshape(3 * m, 3) @ points_t).reshape(m, 3, -1)
-    x = (mapped[:, 0] / mapped[:, 2]).astype(np.float32)
-    y = (mapped[:, 1] / mapped[:, 2]).astype(np.float32)
+    # rows: the x, then y, then w coordinates of every marker's points
+    mapped = (homographies.transpose(1, 0, 2).reshape(3 * m, 3) @ points_t).reshape(3, m, -1)
+    x, y = (mapped[:2] / mapped[2]).astype(np.float32)
     return _remap(gray, x, y)
 
 
@@ -173,8 +173,10 @@ def refine_many(
     """:func:`refine_corners` for several markers at once: each iteration samples all the
     markers still moving with one ``cv2.remap`` and a few numpy calls (their fixed cost is
     what a single marker pays for)."""
+    if not quads:
+        return []
     # quads as flat lists x0 y0 x1 y1 x2 y2 x3 y3 of Python floats (cheapest to unpack)
-    starts = [np.asarray(q, dtype=np.float64).reshape(8).tolist() for q in quads]
+    starts = np.array([np.asarray(q, dtype=np.float64).reshape(8) for q in quads]).tolist()
     current = list(starts)
     reach = [_HALF_PROFILE_PX] * len(quads)
     blur = [(0.0, 0.0)] * len(quads)
@@ -200,18 +202,19 @@ def refine_many(
                 reach[i] = wanted
                 still.append(i)
         active = still
+    corners = np.array(current).reshape(-1, 4, 2)
     out: list[Refined | None] = []
+    hypot = math.hypot
     for i, (x0, y0, x1, y1, x2, y2, x3, y3) in enumerate(starts):
         if failed[i]:
             out.append(None)
             continue
-        hypot = math.hypot
         side = min(hypot(x1 - x0, y1 - y0), hypot(x2 - x1, y2 - y1))
         side = min(side, hypot(x3 - x2, y3 - y2), hypot(x0 - x3, y0 - y3))
         if _largest_move(current[i], starts[i]) > _MAX_SHIFT_CELLS * side / cells:
             out.append(None)
             continue
-        out.append(Refined(np.array(current[i]).reshape(4, 2), blur[i][0], blur[i][1], used[i]))
+        out.append(Refined(corners[i], blur[i][0], blur[i][1], used[i]))
     return out
 
 
@@ -225,8 +228,9 @@ _POWERS: Final = np.kron(np.eye(3), np.stack([np.ones(_NT), _ALONG, _ALONG * _AL
 def _profile_plan(ns: int) -> tuple[Floats, Floats]:
     """For ``ns`` samples per profile: the (3, nt * ns) matrix turning a side's start,
     side vector and half-profile normal (x or y components) into the coordinates of its
-    samples, and the (3, ns) matrix giving the mean of the two samples at each end of a
-    profile and the sum of its samples."""
+    samples, and the (4, ns) matrix giving, from a profile's samples v, the level inside
+    the border low = mean of the first two, the span = mean of the last two - low, and
+    sum(v) - ns low, 2 sum(v) - ns low (exact: small multiples of halves)."""
     plan = _UNIT_PROFILES.get(ns)
     if plan is None:
         unit = np.linspace(-1.0, 1.0, ns)
@@ -234,10 +238,12 @@ def _profile_plan(ns: int) -> tuple[Floats, Floats]:
         coef[0] = 1.0
         coef[1] = _ALONG[:, None]
         coef[2] = unit[None, :]
-        ends = np.zeros((3, ns))
+        ends = np.zeros((4, ns))
         ends[0, :2] = 0.5
         ends[1, -2:] = 0.5
-        ends[2, :] = 1.0
+        ends[1, :2] = -0.5
+        ends[2:, :] = [[1.0], [2.0]]
+        ends[2:, :2] -= ns * 0.5
         plan = (coef.reshape(3, -1), ends)
         _UNIT_PROFILES[ns] = plan
     return plan
@@ -250,23 +256,33 @@ def _largest_move(a: list[float], b: list[float]) -> float:
 
 
 _Side = tuple[float, float, float, float, float, float, float]  # x0 y0 dx dy nx ny half
+# per side: x0 dx half * nx, then the same for y; the largest half profile length
+_Geometry = tuple[list[_Side], list[float], list[float], float]
 
 
-def _sides(quad: list[float], cells: int, reach_px: float) -> list[_Side] | None:
-    """Per side: start, direction, outward unit normal and half profile length."""
+def _sides(quad: list[float], cells: int, reach_px: float) -> _Geometry | None:
+    """Per side: start, direction, outward unit normal and half profile length (and the
+    rows of the matrix giving its sample coordinates, see _refine_batch)."""
     x0, y0, x1, y1, x2, y2, x3, y3 = quad
     area = (x0 * y1 - y0 * x1) + (x1 * y2 - y1 * x2) + (x2 * y3 - y2 * x3) + (x3 * y0 - y3 * x0)
     # outward normals: (u_y, -u_x) for the clockwise (y down) order cv2.aruco reports
     sign = 1.0 if area > 0 else -1.0
     sides: list[_Side] = []
+    xs: list[float] = []
+    ys: list[float] = []
+    widest = 0.0
     for xa, ya, xb, yb in ((x0, y0, x1, y1), (x1, y1, x2, y2), (x2, y2, x3, y3), (x3, y3, x0, y0)):
         dx, dy = xb - xa, yb - ya
         length = math.hypot(dx, dy)
         if length < 4.0:
             return None
         nx, ny = sign * dy / length, -sign * dx / length
-        sides.append((xa, ya, dx, dy, nx, ny, min(length * _HALF_PROFILE_CELLS / cells, reach_px)))
-    return sides
+        half = min(length * _HALF_PROFILE_CELLS / cells, reach_px)
+        sides.append((xa, ya, dx, dy, nx, ny, half))
+        xs += (xa, dx, half * nx)
+        ys += (ya, dy, half * ny)
+        widest = max(widest, half)
+    return sides, xs, ys, widest
 
 
 def _refine_batch(
@@ -283,47 +299,44 @@ def _refine_batch(
     candidate and tracked marker).
     """
     geometry = [_sides(q, cells, r) for q, r in zip(quads, reaches, strict=True)]
-    valid = [g for g in geometry if g is not None]
-    if not valid:
+    xs: list[float] = []  # per side, x components then y: start, side vector, half normal
+    ys: list[float] = []
+    widest = 0.0
+    for g in geometry:
+        if g is not None:
+            xs += g[1]
+            ys += g[2]
+            widest = max(widest, g[3])
+    if not xs:
         return [None] * len(quads)
-    widest = max(side[6] for g in valid for side in g)
     lo_n, hi_n = _PROFILE_SAMPLES
     ns = min(max(2 * math.ceil(widest / _PROFILE_STEP_PX) + 1, lo_n), hi_n)
     coef, ends = _profile_plan(ns)
-    # per side, x components then y: start, side vector, half-profile normal
-    xs: list[float] = []
-    ys: list[float] = []
-    for g in valid:
-        for x0, y0, dx, dy, nx, ny, half in g:
-            xs += (x0, dx, half * nx)
-            ys += (y0, dy, half * ny)
     coords = (np.array(xs + ys).reshape(-1, 3) @ coef).astype(np.float32)  # (2 * sides, nt ns)
     x, y = coords.reshape(2, len(xs) // 3, -1)
     v = _remap(gray, x, y).reshape(-1, ns)  # (profiles, ns)
-    # per profile: inside (border) level, outside (quiet zone) level, sum, sum of squares
-    low, high, v_sum = ends @ v.T
-    v_sq = np.einsum("ij,ij->i", v, v)
-    span = high - low
-    # per side and profile: measured (enough contrast), and with f = (v - low) / span the
-    # normalised profile (never formed: fewer numpy calls), f_sum and f_sum - f_sq where
+    # per profile: inside (border) level, span to the outside (quiet zone) level, and
+    # with f = (v - low) / span the normalised profile (never formed: fewer numpy calls),
+    # span f_sum = sum(v) - ns low and span^2 f_sq = sum(v^2) - low (2 sum(v) - ns low)
+    low, span, centred_sum, twice = (ends @ v.T).reshape(4, -1, _NT)
+    centred_sq = np.einsum("ij,ij->i", v, v).reshape(-1, _NT) - low * twice
+    # per side and profile: measured (enough contrast), f_sum and f_sum - f_sq where
     # measured, else 0: a normalised step integrates to its position, f (1 - f) to
     # sigma / sqrt(pi)
-    per_side = np.empty((len(v) // _NT, 3, _NT))
+    per_side = np.empty((len(low), 3, _NT))
     measured, steps, spreads = per_side.transpose(1, 0, 2)
-    np.greater(span.reshape(-1, _NT), _MIN_EDGE_CONTRAST, out=measured)
-    inverse = measured / np.maximum(span, _MIN_EDGE_CONTRAST).reshape(-1, _NT)
-    centred_sum = v_sum - ns * low
-    np.multiply(centred_sum.reshape(-1, _NT), inverse, out=steps)
-    centred_sq = v_sq - low * (v_sum + centred_sum)
-    np.subtract(steps, centred_sq.reshape(-1, _NT) * (inverse * inverse), out=spreads)
+    np.greater(span, _MIN_EDGE_CONTRAST, out=measured)
+    inverse = measured / np.maximum(span, _MIN_EDGE_CONTRAST)
+    np.multiply(centred_sum, inverse, out=steps)
+    np.multiply(centred_sum - centred_sq * inverse, inverse, out=spreads)
     sums = (per_side.reshape(-1, 3 * _NT) @ _POWERS).tolist()  # per side: 9 sums
     out: list[tuple[list[float], tuple[float, float], float] | None] = []
     k = 0
-    for sides in geometry:
-        if sides is None:
+    for g in geometry:
+        if g is None:
             out.append(None)
             continue
-        out.append(_lines_to_corners(sides, ns, sums[k : k + 4]))
+        out.append(_lines_to_corners(g[0], ns, sums[k : k + 4]))
         k += 4
     return out
 
@@ -505,7 +518,7 @@ class MarkerModel:
         )
         return out
 
-    _COVERAGE_BLOCK: Final = 16
+    _COVERAGE_BLOCK: Final = 64
 
     def _coverage_rows_of(self, buckets: list[int]) -> list[int]:
         """Rows of the coverage table for these blur buckets (widths in cells, 3 % steps): the
@@ -513,22 +526,25 @@ class MarkerModel:
         are computed together, with the rest of their block of neighbouring buckets (the
         blur and size of the markers seen so far are those likely to come)."""
         rows = self._coverage_rows
-        missing = {b // self._COVERAGE_BLOCK for b in buckets if b not in rows}
-        if missing:
-            size = self._COVERAGE_BLOCK
-            new = [b for block in sorted(missing) for b in range(block * size, (block + 1) * size)]
-            new = [b for b in new if b not in rows]
-            sigma = np.array([math.exp(b * self._BUCKET) for b in new])
-            # the CDF at each (sample - cell edge) offset: _phi of the distinct offsets only
-            cdf = _phi(self._offsets[None, :] / sigma[:, None])[:, self._offset_index]
-            first = len(rows)
-            table = self._coverage_table
-            if first + len(new) > len(table):
-                table = np.zeros((2 * (first + len(new)), *table.shape[1:]))
-                table[:first] = self._coverage_table[:first]
-                self._coverage_table = table
-            table[first : first + len(new)] = cdf[:, :, :-1] - cdf[:, :, 1:]
-            rows.update((b, first + k) for k, b in enumerate(new))
+        try:
+            return [rows[b] for b in buckets]
+        except KeyError:
+            pass
+        size = self._COVERAGE_BLOCK
+        missing = sorted({b // size for b in buckets if b not in rows})
+        new = [b for block in missing for b in range(block * size, (block + 1) * size)]
+        new = [b for b in new if b not in rows]
+        sigma = np.array([math.exp(b * self._BUCKET) for b in new])
+        # the CDF at each (sample - cell edge) offset: _phi of the distinct offsets only
+        cdf = _phi(self._offsets[None, :] / sigma[:, None])[:, self._offset_index]
+        first = len(rows)
+        table = self._coverage_table
+        if first + len(new) > len(table):
+            table = np.zeros((2 * (first + len(new)), *table.shape[1:]))
+            table[:first] = self._coverage_table[:first]
+            self._coverage_table = table
+        table[first : first + len(new)] = cdf[:, :, :-1] - cdf[:, :, 1:]
+        rows.update((b, first + k) for k, b in enumerate(new))
         return [rows[b] for b in buckets]
 
     def _key(
@@ -689,13 +705,17 @@ def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> 
     """:func:`fit_marker` for several (corners, id, blur) at once: one ``cv2.remap`` for all
     of them, the models not cached yet computed together, then one small matrix product per
     marker."""
+    if not requests:
+        return []
     results: list[FitResult | None] = [None] * len(requests)
     todo: list[tuple[int, float]] = []
     keys: list[tuple[int, int, int, int, int]] = []
     homographies = []
-    for index, (corners, tag_id, measured) in enumerate(requests):
-        quad = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-        (x0, y0), (x1, y1), (x2, y2), (x3, y3) = quad.tolist()
+    quads = np.array([np.asarray(c, dtype=np.float64).reshape(4, 2) for c, _, _ in requests])
+    corners32 = quads.astype(np.float32)
+    for index, ((x0, y0, x1, y1, x2, y2, x3, y3), (_, tag_id, measured)) in enumerate(
+        zip(quads.reshape(-1, 8).tolist(), requests, strict=True)
+    ):
         top, bottom = math.hypot(x1 - x0, y1 - y0), math.hypot(x2 - x3, y2 - y3)
         left, right = math.hypot(x3 - x0, y3 - y0), math.hypot(x2 - x1, y2 - y1)
         cell_x = (top + bottom) / (2.0 * model.cells)
@@ -709,7 +729,7 @@ def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> 
             blur = None
         todo.append((index, cell_px))
         keys.append(model._key(tag_id, cell_x, cell_y, blur))
-        homographies.append(model.homography(quad))
+        homographies.append(cv2.getPerspectiveTransform(model._square, corners32[index]))
     if todo:
         all_models = model._models(keys)
         observed = model.sample_many(gray, np.stack(homographies))  # (m, N)
