@@ -4,6 +4,8 @@ Pure numpy + OpenCV. Both work on batches of markers (:func:`refine_many`, :func
 one ``cv2.remap`` samples every marker of a frame and a handful of numpy calls process all the
 samples, because on small arrays a numpy call's fixed cost (microseconds) dwarfs its
 arithmetic; per-marker geometry is plain Python floats for the same reason.
+(``tests/test_refine_reference.py`` checks the results against the simpler implementation
+this one replaced, kept as ``tests/reference_refine.py``.)
 
 Pixel convention: OpenCV's (and the scene generator's): the centre of pixel (row r, col c) is
 at (x=c, y=r). Marker corners are the outer corners of the black border, ordered as
@@ -448,8 +450,7 @@ class MarkerModel:
         self._axis = (np.arange(per_axis) + 0.5) / FIT_SAMPLES_PER_CELL - 1.0
         gx, gy = np.meshgrid(self._axis, self._axis)
         self._grid = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32).reshape(-1, 1, 2)
-        self._grid_h = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)], axis=1)
-        self._grid_t = np.ascontiguousarray(self._grid_h.T)  # (3, N)
+        self._grid_t = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])  # (3, N) homogeneous
         self._edges = np.arange(total + 1, dtype=np.float64) - 1.0  # cell boundaries
         # sample - cell edge offsets: few distinct values (the samples are on a grid)
         offsets = self._axis[:, None] - self._edges[None, :]
