@@ -70,7 +70,9 @@ def test_tags_under_any_near_white_light_pass(
     black = (offset, offset, offset)
     image, det = _tag_on_canvas(3, white, black)  # type: ignore[arg-type]
     (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
-    assert chroma <= 0.11 < DEFAULT_MAX_CHROMA
+    spread = (max(tint) - min(tint)) / (sum(tint) / 3.0)  # the light's own chroma
+    assert chroma <= spread + 0.02  # (rounding to integers)
+    assert chroma < DEFAULT_MAX_CHROMA
 
 
 @given(channel=st.integers(0, 2), strength=st.floats(0.5, 1.0))

@@ -193,6 +193,29 @@ def test_tracking_follows_a_drive_without_losing_recall() -> None:
     assert scanning.stats.full_scans == len(frames)
 
 
+@pytest.mark.parametrize(
+    ("code", "to_rgb"), [(cv2.COLOR_BGRA2GRAY, False), (cv2.COLOR_RGB2GRAY, True)]
+)
+def test_converting_only_what_is_read_gives_the_grey_frame_result(code: int, to_rgb: bool) -> None:
+    """detect_converting(colour) == detect(grey) frame by frame, on a drive (followed frames
+    convert only the regions around the tracks) and then on unrelated frames (full scans)."""
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=23, effects=Effects.realistic())
+    scenes = [*generator.drive(40, fps=30.0, n_tags=3, n_distractors=1)]
+    scenes += [generator.random_scene(3, 1) for _ in range(3)]
+    grey, converting = FastDetector(), FastDetector()
+    for scene in scenes:
+        colour = np.asarray(
+            cv2.cvtColor(scene.image, cv2.COLOR_BGRA2RGB) if to_rgb else scene.image, np.uint8
+        )
+        expected = grey.detect(_gray(scene))
+        found = converting.detect_converting(colour, code)
+        assert [d.tag_id for d in found] == [d.tag_id for d in expected]
+        for a, b in zip(found, expected, strict=True):
+            np.testing.assert_array_equal(a.corners, b.corners)
+    assert converting.stats.full_scans == grey.stats.full_scans < len(scenes)  # some followed
+    assert converting.stats.followed_direct == grey.stats.followed_direct > 0
+
+
 def test_unrelated_frames_are_each_fully_scanned() -> None:
     generator = SceneGenerator(CameraModel.named("VGA"), seed=31, effects=Effects.realistic())
     scenes = [generator.random_scene(3, 0, distance_m=(0.6, 2.0)) for _ in range(5)]
@@ -295,6 +318,8 @@ def test_bad_configuration_and_input_are_refused() -> None:
         FastDetector("DICT_NOPE")
     with pytest.raises(ValueError, match="grey"):
         FastDetector().detect(np.zeros((10, 10, 3), np.uint8))
+    with pytest.raises(ValueError, match="colour"):
+        FastDetector().detect_converting(np.zeros((10, 10), np.uint8), cv2.COLOR_BGR2GRAY)
 
 
 def test_a_tag_appearing_on_a_still_scene_is_reported_on_that_frame() -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -28,6 +28,15 @@ class Detector(Protocol):
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
         """Return every marker found in ``gray``."""
+        ...
+
+
+@runtime_checkable
+class ConvertingDetector(Protocol):
+    """A detector that takes the colour frame and converts to grey only what it reads."""
+
+    def detect_converting(self, pixels: npt.NDArray[np.uint8], code: int) -> list[Detection]:
+        """Return what ``detect(cv2.cvtColor(pixels, code))`` would."""
         ...
 
 

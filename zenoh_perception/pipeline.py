@@ -8,7 +8,13 @@ from dataclasses import dataclass
 import cv2
 
 from zenoh_perception.detect.colour import ChromaCheck
-from zenoh_perception.detection import Detection, Detector, aruco_dictionary, make_detector
+from zenoh_perception.detection import (
+    ConvertingDetector,
+    Detection,
+    Detector,
+    aruco_dictionary,
+    make_detector,
+)
 from zenoh_perception.frames import Frame, to_gray
 from zenoh_perception.geometry import (
     closeness_from_area,
@@ -92,9 +98,16 @@ class Pipeline:
 
     def process(self, frame: Frame) -> Analysis:
         start = time.perf_counter()
-        gray = to_gray(frame)
-        converted = time.perf_counter()
-        detections = self.detector.detect(gray)
+        code = frame.encoding.to_gray
+        if code is not None and isinstance(self.detector, ConvertingDetector):
+            # the detector converts what it reads (on followed frames, not the whole frame):
+            # its time includes the conversion, convert_ms is 0
+            converted = start
+            detections = self.detector.detect_converting(frame.pixels, code)
+        else:
+            gray = to_gray(frame)
+            converted = time.perf_counter()
+            detections = self.detector.detect(gray)
         if self._chroma is not None and detections and frame.pixels.ndim == 3:
             # tags are black on white: coloured look-alikes (signs, icons) go here
             detections = self._chroma.keep(frame.pixels, detections, self.settings.max_tag_chroma)
