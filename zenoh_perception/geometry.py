@@ -24,17 +24,31 @@ import numpy.typing as npt
 Corners = npt.NDArray[np.floating]
 
 
+# Plain Python floats: on four points, numpy's per-call cost (np.roll, mean) is 20x the maths,
+# and these run for every tag of every frame.
+
+
+def _points(corners: Corners) -> list[list[float]]:
+    out: list[list[float]] = np.asarray(corners, dtype=np.float64).reshape(-1, 2).tolist()
+    return out
+
+
 def tag_center(corners: Corners) -> tuple[float, float]:
     """Mean of the four corners, in absolute pixels."""
-    mean = np.asarray(corners, dtype=np.float64).reshape(4, 2).mean(axis=0)
-    return float(mean[0]), float(mean[1])
+    pts = _points(corners)
+    if len(pts) != 4:
+        msg = f"expected 4 corners, got {len(pts)}"
+        raise ValueError(msg)
+    return sum(p[0] for p in pts) / 4.0, sum(p[1] for p in pts) / 4.0
 
 
 def polygon_area(corners: Corners) -> float:
     """Area of the corner polygon in square pixels (shoelace formula, orientation-free)."""
-    pts = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
-    x, y = pts[:, 0], pts[:, 1]
-    return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2.0)
+    pts = _points(corners)
+    twice = 0.0
+    for (x0, y0), (x1, y1) in zip(pts, pts[1:] + pts[:1], strict=True):
+        twice += x0 * y1 - y0 * x1
+    return abs(twice) / 2.0
 
 
 def clamp_unit(value: float) -> float:

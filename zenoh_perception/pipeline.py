@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass
 
 import cv2
+import numpy as np
 
 from zenoh_perception.detect.colour import ChromaCheck
 from zenoh_perception.detection import (
@@ -48,7 +49,7 @@ def observe(
     x, y = tag_center(detection.corners)
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
-    corners = tuple((float(cx), float(cy)) for cx, cy in detection.corners)
+    corners = tuple((cx, cy) for cx, cy in np.asarray(detection.corners, np.float64).tolist())
     size = settings.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:
