@@ -68,23 +68,29 @@ class ChromaCheck:
             raise ValueError(msg)
         if not detections:
             return []
-        points = []
-        for det in detections:
-            h = cv2.getPerspectiveTransform(
-                self._square, np.asarray(det.corners, dtype=np.float32).reshape(4, 2)
-            )
-            mapped = self._centres @ np.asarray(h, dtype=np.float64).T
-            points.append(mapped[:, :2] / mapped[:, 2:3])
-        xy = np.concatenate(points).astype(np.float32).reshape(1, -1, 2)
+        homographies = np.stack(
+            [
+                cv2.getPerspectiveTransform(
+                    self._square, np.asarray(det.corners, dtype=np.float32).reshape(4, 2)
+                )
+                for det in detections
+            ]
+        )
+        mapped = np.matmul(self._centres, homographies.transpose(0, 2, 1))  # (n, cells^2, 3)
+        xy = (mapped[:, :, :2] / mapped[:, :, 2:3]).astype(np.float32).reshape(1, -1, 2)
         samples = _remap(image, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         channels = int(image.shape[2])
         values = np.asarray(samples, dtype=np.float64).reshape(len(detections), -1, channels)
-        out: list[float] = []
-        for det, cells in zip(detections, values[:, :, :3], strict=True):
-            black = self.black_cells(det.tag_id)
-            difference = cells[~black].mean(axis=0) - cells[black].mean(axis=0)
-            scale = max(float(difference.mean()), _MIN_DIFFERENCE)
-            out.append(float(difference.max() - difference.min()) / scale)
+        black = np.stack([self.black_cells(det.tag_id) for det in detections]).astype(np.float64)
+        white = 1.0 - black
+        # per detection and channel: mean over its white cells - mean over its black cells
+        sums = np.matmul(np.stack([white, black], axis=1), values[:, :, :3])  # (n, 2, 3)
+        counts = np.stack([white.sum(axis=1), black.sum(axis=1)], axis=1)[:, :, None]
+        means = sums / counts
+        difference = means[:, 0] - means[:, 1]  # (n, 3)
+        scale = np.maximum(difference.mean(axis=1), _MIN_DIFFERENCE)
+        chroma = (difference.max(axis=1) - difference.min(axis=1)) / scale
+        out: list[float] = chroma.tolist()
         return out
 
     def keep(
