@@ -37,6 +37,14 @@ run; the baseline is BGRA->BGR + ``cv2.aruco.ArucoDetector`` with default parame
    the video this is what makes the detector about 6x faster than the baseline per frame,
    with more recall (tracks hold small tags the scan reads only now and then).
 
+5. Grey on demand (:meth:`FastDetector.detect_converting`, what the pipeline calls on colour
+   frames): a followed frame reads only the regions around its tracks and a thumbnail, so
+   only those are converted from BGRA; the whole frame only when a full scan runs. Same
+   result as converting first, without a third of a followed frame's cost.
+
+The colour check that drops coloured look-alikes runs after the detector, in the pipeline
+(:mod:`zenoh_perception.detect.colour`): it needs the colour frame, the detector works on grey.
+
 Guarantees: a marker that a full scan finds is reported at most ``full_scan_period`` frames
 after it appears, and on the very frame it appears when that frame is a scene cut or the tag
 changes a thumbnail cell by ``appear_level`` (a tag about 1/40 of the frame wide or more), so
