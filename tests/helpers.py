@@ -9,7 +9,6 @@ import json
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -22,34 +21,9 @@ from typing import Any
 
 import zenoh
 
+from zenoh_perception.bench._loopback import free_port, loopback_config, loopback_endpoint
+
 REPO = Path(__file__).resolve().parent.parent
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def loopback_endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_port()}"
-
-
-def zenoh_config(
-    *,
-    mode: str = "peer",
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-) -> zenoh.Config:
-    """A loopback-only Zenoh config with multicast scouting off."""
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    return conf
 
 
 @contextmanager
@@ -57,7 +31,7 @@ def open_session(
     *, mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = ()
 ) -> Iterator[zenoh.Session]:
     """A Zenoh session that is always closed, whatever the test does."""
-    session = zenoh.open(zenoh_config(mode=mode, listen=listen, connect=connect))
+    session = zenoh.open(loopback_config(mode=mode, listen=listen, connect=connect))
     try:
         yield session
     finally:
@@ -201,3 +175,7 @@ def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
         timeout=timeout,
         check=False,
     )
+
+
+# the loopback helpers are the benchmarks' own (one implementation), re-exported for the tests
+__all__ = ["free_port", "loopback_config", "loopback_endpoint"]

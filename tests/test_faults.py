@@ -28,6 +28,7 @@ import zenoh
 
 from tests.helpers import (
     Collector,
+    loopback_config,
     loopback_endpoint,
     open_session,
     query_status,
@@ -35,7 +36,6 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
     wait_until,
-    zenoh_config,
 )
 from zenoh_perception.bench.flood import RESOLUTIONS, MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detection import Detection, make_detector
@@ -56,7 +56,7 @@ class Router:
     def __init__(self, endpoint: str) -> None:
         self.endpoint = endpoint
         self.session: zenoh.Session | None = zenoh.open(
-            zenoh_config(mode="router", listen=[endpoint])
+            loopback_config(mode="router", listen=[endpoint])
         )
 
     def stop(self) -> None:
@@ -66,7 +66,7 @@ class Router:
 
     def start(self) -> zenoh.Session:
         self.stop()
-        self.session = zenoh.open(zenoh_config(mode="router", listen=[self.endpoint]))
+        self.session = zenoh.open(loopback_config(mode="router", listen=[self.endpoint]))
         return self.session
 
 

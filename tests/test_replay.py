@@ -23,7 +23,7 @@ import pytest
 import zenoh
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from tests.helpers import Collector, open_session, running_cli, zenoh_config
+from tests.helpers import Collector, loopback_config, open_session, running_cli
 from zenoh_perception.frames import (
     decode_attachment,
     decode_image_cdr,
@@ -509,7 +509,7 @@ def test_main_loops_up_to_the_limit_and_draws_progress(endpoint: str) -> None:
     )
     with open_session(listen=[endpoint]) as session:
         frames = Collector(session, "replay/test")
-        conf = zenoh_config(connect=[endpoint])
+        conf = loopback_config(connect=[endpoint])
         code = main(conf, _ListSource(5), options, threading.Event(), progress_stream=stream)
         got = [frames.get().payload.decode() for _ in range(23)]
     assert code == 0
@@ -523,13 +523,13 @@ def test_main_returns_when_stopped_while_waiting_for_a_subscriber() -> None:
     stop = threading.Event()
     stop.set()
     options = ReplayOptions(key="replay/nobody", pacing=Pacing.ASAP)
-    assert main(zenoh_config(), _ListSource(3), options, stop) == 0
+    assert main(loopback_config(), _ListSource(3), options, stop) == 0
 
 
 def test_main_times_out_without_a_subscriber() -> None:
     options = ReplayOptions(key="replay/nobody", subscriber_timeout_s=0.2)
     with pytest.raises(ReplayError, match="no subscriber on 'replay/nobody'"):
-        main(zenoh_config(), _ListSource(3), options, threading.Event())
+        main(loopback_config(), _ListSource(3), options, threading.Event())
 
 
 # -- CLI behaviour ----------------------------------------------------------------------------

@@ -58,7 +58,6 @@ import os
 import platform
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -77,6 +76,7 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception import __version__
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
 from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
 from zenoh_perception.errors import PerceptionError
@@ -370,26 +370,6 @@ class ServiceError(PerceptionError):
     """A service process of the bench did not start, did not answer or died."""
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def _endpoint() -> str:
-    return f"tcp/127.0.0.1:{_free_port()}"
-
-
-def _config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps("peer"))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    return conf
-
-
 def _undeclare(entity: Any) -> None:
     """Undeclare a subscriber or publisher (unannotated in zenoh-python)."""
     entity.undeclare()
@@ -434,7 +414,7 @@ class ServiceProcess:
             "zenoh_perception",
             "run",
             "-l",
-            _endpoint(),
+            loopback_endpoint(),
             "-e",
             bench_endpoint,
             "--no-multicast-scouting",
@@ -695,9 +675,9 @@ def lockstep(
     bare: list[float] = []
     baseline = Baseline()
     camera = Camera(shm)
-    bench_endpoint = _endpoint()
+    bench_endpoint = loopback_endpoint()
     with (
-        zenoh.open(_config([bench_endpoint], [])) as session,
+        zenoh.open(loopback_config(listen=[bench_endpoint])) as session,
         _services(detectors, bench_endpoint, session) as remotes,
     ):
         for remote in remotes.values():
@@ -765,9 +745,9 @@ def throughput(
     count = max(1, round(rate_hz * seconds))
     height, width = _frame_size(frames[0])
     camera = Camera(shm)
-    bench_endpoint = _endpoint()
+    bench_endpoint = loopback_endpoint()
     with (
-        zenoh.open(_config([bench_endpoint], [])) as session,
+        zenoh.open(loopback_config(listen=[bench_endpoint])) as session,
         _services([detector], bench_endpoint, session) as remotes,
     ):
         remote = remotes[detector]

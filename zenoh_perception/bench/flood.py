@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import queue
-import socket
 import statistics
 import sys
 import threading
@@ -36,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.detection import Detection, Detector, make_detector
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.frames import RawFrameMeta
@@ -545,24 +545,6 @@ def run_load(
 # -- command line ---------------------------------------------------------------------------------
 
 
-def peer_config(*, listen: str | None = None, connect: str | None = None) -> zenoh.Config:
-    """A loopback peer config: multicast scouting off, at most one listen/connect endpoint."""
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([listen] if listen else []))
-    conf.insert_json5("connect/endpoints", json.dumps([connect] if connect else []))
-    return conf
-
-
-def loopback_endpoint() -> str:
-    """``tcp/127.0.0.1:PORT`` with a port that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-    return f"tcp/127.0.0.1:{port}"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     from zenoh_perception.service import PerceptionService  # noqa: PLC0415
     from zenoh_perception.settings import Settings  # noqa: PLC0415
@@ -580,9 +562,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     settings = Settings(stats_interval_s=0.0)
     gate = HoldableDetector(make_detector(settings.detector, settings.dictionary))
     with (
-        zenoh.open(peer_config(listen=endpoint)) as service_session,
+        zenoh.open(loopback_config(listen=[endpoint])) as service_session,
         PerceptionService(service_session, settings, detector=gate),
-        zenoh.open(peer_config(connect=endpoint)) as camera_session,
+        zenoh.open(loopback_config(connect=[endpoint])) as camera_session,
     ):
         report = run_load(camera_session, gate, config)
     problems = report.problems()

@@ -42,14 +42,13 @@ import msgpack
 import numpy as np
 import zenoh
 
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.flood import (
     Camera,
     Listener,
     frames_of,
     is_idle,
-    loopback_endpoint,
     marker_frame,
-    peer_config,
     wait_status,
 )
 from zenoh_perception.bench.soak import start_service, stop_service
@@ -496,7 +495,7 @@ def run_fuzz(
     with tempfile.TemporaryFile("w+") as log:
         proc = start_service(endpoint, log, "--stats-interval-s", "0", "--log-interval-s", "1")
         try:
-            with zenoh.open(peer_config(connect=endpoint)) as session:
+            with zenoh.open(loopback_config(connect=[endpoint])) as session:
                 wait_status(session, lambda s: True, timeout=timeout_s, what="up")
                 camera = Camera(session)
                 listener = Listener(session)

@@ -30,15 +30,14 @@ from typing import Any, TextIO
 
 import zenoh
 
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.flood import (
     RESOLUTIONS,
     Camera,
     MarkerFrame,
     ProcSample,
     frames_of,
-    loopback_endpoint,
     marker_frame,
-    peer_config,
     percentile,
     proc_sample,
     wait_status,
@@ -196,7 +195,7 @@ def run_soak(config: SoakConfig, *, progress: TextIO | None = None) -> SoakRepor
         exit_code: int | None = None
         exit_s: float | None = None
         try:
-            with zenoh.open(peer_config(connect=endpoint)) as session:
+            with zenoh.open(loopback_config(connect=[endpoint])) as session:
                 wait_status(session, lambda s: True, timeout=config.startup_timeout_s, what="up")
                 latencies = _Latencies()
                 subscriber = session.declare_subscriber("perception/tags", latencies.on_record)
