@@ -22,10 +22,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Final
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.detect.refine import MarkerModel
 from zenoh_perception.detection import Detection
 
 Image = npt.NDArray[np.uint8]
@@ -34,32 +34,12 @@ Image = npt.NDArray[np.uint8]
 DEFAULT_MAX_CHROMA: Final = 0.2
 _MIN_DIFFERENCE: Final = 1.0  # grey levels; guards the division on a flat patch
 
-# cv2's stubs demand a second map; OpenCV takes None when the first holds (x, y) pairs.
-_remap: Any = cv2.remap
-
 
 class ChromaCheck:
     """Chroma of detections of one ArUco dictionary (see the module doc)."""
 
     def __init__(self, dictionary: Any) -> None:
-        self._dictionary = dictionary
-        self._cells = int(dictionary.markerSize) + 2  # with the black border
-        size = float(self._cells)
-        self._square = np.array([[0, 0], [size, 0], [size, size], [0, size]], dtype=np.float32)
-        cy, cx = np.mgrid[0 : self._cells, 0 : self._cells] + 0.5
-        self._centres = np.stack([cx.ravel(), cy.ravel(), np.ones(cx.size)], axis=1)
-        self._black: dict[int, npt.NDArray[np.bool_]] = {}
-
-    def black_cells(self, tag_id: int) -> npt.NDArray[np.bool_]:
-        """(cells * cells,) row-major: True on the black cells of ``tag_id``, border included."""
-        cached = self._black.get(tag_id)
-        if cached is None:
-            image = cv2.aruco.generateImageMarker(
-                self._dictionary, tag_id, self._cells, borderBits=1
-            )
-            cached = np.asarray(image).ravel() < 128
-            self._black[tag_id] = cached
-        return cached
+        self._model = MarkerModel(dictionary)  # cell centres, homographies, black cells
 
     def chroma_many(self, image: Image, detections: Sequence[Detection]) -> list[float]:
         """Chroma of each detection in ``image`` (H, W, 3 or 4 channels; a 4th is ignored)."""
@@ -68,20 +48,9 @@ class ChromaCheck:
             raise ValueError(msg)
         if not detections:
             return []
-        homographies = np.stack(
-            [
-                cv2.getPerspectiveTransform(
-                    self._square, np.asarray(det.corners, dtype=np.float32).reshape(4, 2)
-                )
-                for det in detections
-            ]
-        )
-        mapped = np.matmul(self._centres, homographies.transpose(0, 2, 1))  # (n, cells^2, 3)
-        xy = (mapped[:, :, :2] / mapped[:, :, 2:3]).astype(np.float32).reshape(1, -1, 2)
-        samples = _remap(image, xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        channels = int(image.shape[2])
-        values = np.asarray(samples, dtype=np.float64).reshape(len(detections), -1, channels)
-        black = np.stack([self.black_cells(det.tag_id) for det in detections]).astype(np.float64)
+        corners = [np.asarray(det.corners, dtype=np.float64) for det in detections]
+        values = self._model.cell_samples(image, corners)
+        black = np.array([self._model.black_cells(det.tag_id) for det in detections], float)
         white = 1.0 - black
         # per detection and channel: mean over its white cells - mean over its black cells
         sums = np.matmul(np.stack([white, black], axis=1), values[:, :, :3])  # (n, 2, 3)

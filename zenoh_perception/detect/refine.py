@@ -107,12 +107,15 @@ def _remap(gray: Gray, x: npt.NDArray[np.float32], y: npt.NDArray[np.float32]) -
     """Bilinear samples of ``gray`` at the (rows, columns) coordinates ``x``, ``y`` (rounded
     to integers, as OpenCV does for uint8 images). Sampled as one row when they fit in one:
     OpenCV splits a remap by rows over threads, which costs more than it saves on the few
-    thousand points of a frame's markers."""
+    thousand points of a frame's markers. A colour image gives one more axis, its channels."""
     shape = x.shape
     if x.size <= _REMAP_WIDTH:
         x, y = x.reshape(1, -1), y.reshape(1, -1)
-    samples = cv2.remap(gray, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    out: Floats = np.asarray(samples, dtype=np.float64).reshape(shape)
+    samples = np.asarray(
+        cv2.remap(gray, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+        dtype=np.float64,
+    )
+    out: Floats = samples.reshape(shape + samples.shape[2:])
     return out
 
 
@@ -674,6 +677,12 @@ class MarkerModel:
         out = np.asarray(cv2.perspectiveTransform(self._grid, h), dtype=np.float32)
         return out
 
+    def cell_samples(self, image: Gray, corners: Sequence[Quad]) -> Floats:
+        """(m, cells * cells) bilinear samples at the cell centres (border included, row-major)
+        of m markers at ``corners``; (m, cells * cells, channels) from a colour image."""
+        homographies = np.stack([self.homography(np.asarray(q)) for q in corners])
+        return _sample_mapped(image, homographies, self._centres_t)
+
     def sample_many(self, gray: Gray, homographies: Floats) -> Floats:
         """(m, N) bilinear samples at the fit's points of m markers (their homographies)."""
         return _sample_mapped(gray, homographies, self._grid_t)
@@ -812,8 +821,7 @@ def bits_match(
     """
     if not requests:
         return []
-    homographies = np.stack([model.homography(np.asarray(q)) for q, _ in requests])
-    values = _sample_mapped(gray, homographies, model._centres_t).tolist()
+    values = model.cell_samples(gray, [q for q, _ in requests]).tolist()
     out: list[bool] = []
     for row, (_, tag_id) in zip(values, requests, strict=True):
         black = model.black_cells(tag_id)
