@@ -58,7 +58,6 @@ import os
 import platform
 import queue
 import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -77,6 +76,7 @@ import zenoh
 
 from zenoh_perception import __version__
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception.bench.soak import start_service, stop_service
 from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
 from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
 from zenoh_perception.errors import PerceptionError
@@ -408,16 +408,11 @@ class ServiceProcess:
         self.record_key = f"{prefix}/tags"
         self.status_key = f"{prefix}/status"
         self._log = tempfile.TemporaryFile("w+", encoding="utf-8")  # noqa: SIM115 - stop()
-        command = [
-            sys.executable,
-            "-m",
-            "zenoh_perception",
-            "run",
-            "-l",
+        self.proc = start_service(
             loopback_endpoint(),
+            self._log,
             "-e",
             bench_endpoint,
-            "--no-multicast-scouting",
             "--detector",
             detector,
             "--dictionary",
@@ -434,12 +429,6 @@ class ServiceProcess:
             f"{prefix}/alive",
             "--stats-interval-s",
             "0",
-        ]
-        self.proc = subprocess.Popen(
-            command,
-            stdout=self._log,
-            stderr=subprocess.STDOUT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )
 
     def output(self) -> str:
@@ -461,12 +450,7 @@ class ServiceProcess:
         """SIGTERM, then SIGKILL if it has not exited within ``timeout``; the exit code."""
         try:
             if self.proc.poll() is None:
-                self.proc.send_signal(signal.SIGTERM)
-                try:
-                    self.proc.wait(timeout=timeout)
-                except subprocess.TimeoutExpired:
-                    self.proc.kill()
-                    self.proc.wait()
+                stop_service(self.proc, timeout)
             return self.proc.returncode
         finally:
             self._log.close()
