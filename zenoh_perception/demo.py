@@ -104,7 +104,8 @@ def main(
     stop = stop or threading.Event()
     scenes = drive_forever(resolution, fps, settings.dictionary)
     with zenoh.open(conf) as session:
-        if camera_only:
+
+        def camera() -> None:
             publish_camera(
                 session,
                 settings.input_key,
@@ -115,6 +116,9 @@ def main(
                 limit=limit,
                 shm=shm,
             )
+
+        if camera_only:
+            camera()
             return 0
 
         def show(sample: zenoh.Sample) -> None:
@@ -127,16 +131,7 @@ def main(
         with PerceptionService(session, settings):
             subscriber = session.declare_subscriber(settings.record_key, show)
             try:
-                publish_camera(
-                    session,
-                    settings.input_key,
-                    scenes,
-                    fps=fps,
-                    cdr=cdr,
-                    stop=stop,
-                    limit=limit,
-                    shm=shm,
-                )
+                camera()
                 stop.wait(0.5 if limit else 0)  # let the last frame's record arrive
             finally:
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
