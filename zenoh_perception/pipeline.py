@@ -69,6 +69,34 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
     )
 
 
+class TagFinder:
+    """What runs on every frame, in the service and in the bench: the detector, fed the colour
+    frame when it converts only what it reads (else the frame converted to grey), then the
+    colour check (``max_chroma`` 0: off) on colour frames."""
+
+    def __init__(self, detector: Detector, dictionary: str, max_chroma: float) -> None:
+        self.detector = detector
+        self._max_chroma = max_chroma
+        self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if max_chroma > 0 else None
+
+    def find(self, frame: Frame) -> tuple[list[Detection], float]:
+        """The tags in ``frame``, and the seconds spent converting the whole frame to grey
+        first (0 when the detector converts what it reads: its time then includes that)."""
+        start = time.perf_counter()
+        converted = start
+        code = frame.encoding.to_gray
+        if code is not None and isinstance(self.detector, ConvertingDetector):
+            detections = self.detector.detect_converting(frame.pixels, code)
+        else:
+            gray = to_gray(frame)
+            converted = time.perf_counter()
+            detections = self.detector.detect(gray)
+        if self._chroma is not None and detections and frame.pixels.ndim == 3:
+            # tags are black on white: coloured look-alikes (signs, icons) go here
+            detections = self._chroma.keep(frame.pixels, detections, self._max_chroma)
+        return detections, converted - start
+
+
 class Pipeline:
     """Turns decoded frames into an :class:`Analysis`.
 
@@ -79,39 +107,20 @@ class Pipeline:
         self.settings = settings
         if settings.opencv_threads > 0:
             cv2.setNumThreads(settings.opencv_threads)
-        self.detector = (
-            detector
-            if detector is not None
-            else make_detector(
+        if detector is None:
+            detector = make_detector(
                 settings.detector,
                 settings.dictionary,
                 full_scan_period=settings.full_scan_period,
                 scan_threads=settings.scan_threads,
             )
-        )
+        self._finder = TagFinder(detector, settings.dictionary, settings.max_tag_chroma)
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)
-        self._chroma = (
-            ChromaCheck(aruco_dictionary(settings.dictionary))
-            if settings.max_tag_chroma > 0
-            else None
-        )
 
     def process(self, frame: Frame) -> Analysis:
         start = time.perf_counter()
-        code = frame.encoding.to_gray
-        if code is not None and isinstance(self.detector, ConvertingDetector):
-            # the detector converts what it reads (on followed frames, not the whole frame):
-            # its time includes the conversion, convert_ms is 0
-            converted = start
-            detections = self.detector.detect_converting(frame.pixels, code)
-        else:
-            gray = to_gray(frame)
-            converted = time.perf_counter()
-            detections = self.detector.detect(gray)
-        if self._chroma is not None and detections and frame.pixels.ndim == 3:
-            # tags are black on white: coloured look-alikes (signs, icons) go here
-            detections = self._chroma.keep(frame.pixels, detections, self.settings.max_tag_chroma)
+        detections, convert_s = self._finder.find(frame)
         detected = time.perf_counter()
         width, height = frame.width, frame.height
         tags = tuple(observe(d, width, height, self.settings, self.intrinsics) for d in detections)
@@ -119,6 +128,6 @@ class Pipeline:
         return Analysis(
             tags=tags,
             selected=selected,
-            convert_ms=(converted - start) * 1e3,
-            detect_ms=(detected - converted) * 1e3,
+            convert_ms=convert_s * 1e3,
+            detect_ms=(detected - start - convert_s) * 1e3,
         )

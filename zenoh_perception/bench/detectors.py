@@ -77,11 +77,12 @@ import zenoh
 from zenoh_perception import __version__
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.soak import start_service, stop_service
-from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
+from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA
 from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.fast_detector import FastDetector, FastDetectorConfig
-from zenoh_perception.frames import RawFrameMeta
+from zenoh_perception.frames import ENCODINGS, Frame, RawFrameMeta
+from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.pose import Intrinsics, estimate_pose
 from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
 from zenoh_perception.shm import Loaded, ShmPutter
@@ -91,6 +92,7 @@ Handler = Callable[[argparse.Namespace], int]
 
 RESOLUTIONS: Final = ("VGA", "HD720", "HD1080", "HD2K")
 DICTIONARY: Final = "DICT_4X4_50"
+BGRA8: Final = ENCODINGS["bgra8"]
 VIDEO_RESOLUTION: Final = "HD720"
 THROUGHPUT_RESOLUTION: Final = "HD1080"
 THROUGHPUT_HZ: Final = 60.0
@@ -270,9 +272,9 @@ class Baseline:
 
 
 class Project:
-    """A :class:`FastDetector` on the BGRA frame (one per frame set, like one per stream; it
-    converts to grey the parts it reads), then the colour check with ``max_chroma`` (0: off),
-    as the service's pipeline does."""
+    """A :class:`FastDetector` (one per frame set, like one per stream) run on the BGRA frame
+    as the service's pipeline runs it (:class:`TagFinder`: it converts to grey the parts it
+    reads, then the colour check with ``max_chroma``, 0: off)."""
 
     name = "fast"
 
@@ -280,15 +282,11 @@ class Project:
         self, config: FastDetectorConfig | None = None, max_chroma: float = DEFAULT_MAX_CHROMA
     ) -> None:
         self.detector = FastDetector(DICTIONARY, config)
-        self._max_chroma = max_chroma
-        self._chroma = ChromaCheck(aruco_dictionary(DICTIONARY))
+        self._finder = TagFinder(self.detector, DICTIONARY, max_chroma)
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
-        # as the service's pipeline: the detector converts to grey what it reads
-        detections = self.detector.detect_converting(image, cv2.COLOR_BGRA2GRAY)
-        if self._max_chroma > 0 and detections:
-            detections = self._chroma.keep(image, detections, self._max_chroma)
+        detections, _ = self._finder.find(Frame(image, BGRA8, None, "bench", None))
         elapsed = (time.perf_counter() - start) * 1e3
         return detections, elapsed
 
