@@ -76,6 +76,8 @@ class TagFinder:
 
     def __init__(self, detector: Detector, dictionary: str, max_chroma: float) -> None:
         self.detector = detector
+        # decided once: a runtime Protocol check inspects the object on every call
+        self._converting = detector if isinstance(detector, ConvertingDetector) else None
         self._max_chroma = max_chroma
         self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if max_chroma > 0 else None
 
@@ -85,8 +87,8 @@ class TagFinder:
         start = time.perf_counter()
         converted = start
         code = frame.encoding.to_gray
-        if code is not None and isinstance(self.detector, ConvertingDetector):
-            detections = self.detector.detect_converting(frame.pixels, code)
+        if code is not None and self._converting is not None:
+            detections = self._converting.detect_converting(frame.pixels, code)
         else:
             gray = to_gray(frame)
             converted = time.perf_counter()
