@@ -18,6 +18,7 @@ from typing import Any
 
 from zenoh_perception.detection import aruco_dictionary
 from zenoh_perception.errors import SettingsError
+from zenoh_perception.fast_detector import FastDetectorConfig
 from zenoh_perception.selection import Policy
 
 DETECTORS = ("fast", "opencv")
@@ -162,12 +163,10 @@ def _validate(settings: Settings) -> None:
         if not math.isfinite(value) or value < 0:
             msg = f"{name} must be zero or positive, not {value!r}"
             raise SettingsError(msg)
-    if settings.full_scan_period < 1:
-        msg = f"full_scan_period must be at least 1, not {settings.full_scan_period}"
-        raise SettingsError(msg)
-    if settings.scan_threads not in (1, 2):
-        msg = f"scan_threads must be 1 or 2, not {settings.scan_threads}"
-        raise SettingsError(msg)
+    # the fast detector's own checks (SettingsError naming the key)
+    FastDetectorConfig(
+        full_scan_period=settings.full_scan_period, scan_threads=settings.scan_threads
+    )
     if not 1 <= settings.debug_jpeg_quality <= 100:
         msg = f"debug_jpeg_quality must be 1..100, not {settings.debug_jpeg_quality}"
         raise SettingsError(msg)
