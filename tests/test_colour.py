@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
 from zenoh_perception.detection import Detection, aruco_dictionary
+from zenoh_perception.fast_detector import FastDetector
 from zenoh_perception.frames import ENCODINGS, Frame
 from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
@@ -126,3 +127,43 @@ def test_generated_tags_pass_the_check() -> None:
         chroma += check.chroma_many(scene.image, truth)
     assert len(chroma) >= 12
     assert max(chroma) < DEFAULT_MAX_CHROMA / 2
+
+
+def test_the_fast_detector_checks_colour_before_refining() -> None:
+    """A code printed yellow on dark green, quiet zone included, is a marker in grey: the
+    detector's own check drops it before the model fit ever sees it."""
+    image, _ = _tag_on_canvas(9, (20, 220, 250), (25, 60, 20), background=(120, 120, 120))
+    unchecked = FastDetector().detect_converting(image, cv2.COLOR_BGRA2GRAY, 0.0)
+    assert [d.tag_id for d in unchecked] == [9]
+    detector = FastDetector()
+    assert detector.detect_converting(image, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA) == []
+    assert detector.stats.colour_rejected >= 1
+    assert detector.stats.rejected == 0  # never refined and fitted
+    grey, real = _tag_on_canvas(9, (235, 235, 235), (20, 20, 20))
+    kept = FastDetector().detect_converting(grey, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA)
+    assert [d.tag_id for d in kept] == [real.tag_id]
+
+
+def test_checking_candidates_finds_what_checking_detections_finds() -> None:
+    """On independent frames full of look-alikes (coloured and white), the detector checking
+    its candidates reports exactly what checking its detections afterwards reported."""
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=11, effects=Effects.realistic())
+    check = ChromaCheck(DICT)
+    rejected = reported = 0
+    for _ in range(12):
+        scene = generator.random_scene(2, 6)
+        detector = FastDetector()
+        early = detector.detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA)
+        rejected += detector.stats.colour_rejected
+        late = check.keep(
+            scene.image,
+            FastDetector().detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, 0.0),
+            DEFAULT_MAX_CHROMA,
+        )
+        assert [d.tag_id for d in early] == [d.tag_id for d in late]
+        for a, b in zip(early, late, strict=True):
+            # (refined in other batches: a batch iterates until its slowest candidate settles)
+            np.testing.assert_allclose(a.corners, b.corners, atol=0.05)
+        reported += len(early)
+    assert rejected > 0  # the frames did hold coloured look-alikes
+    assert reported > 0

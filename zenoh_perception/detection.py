@@ -35,8 +35,12 @@ class Detector(Protocol):
 class ConvertingDetector(Protocol):
     """A detector that takes the colour frame and converts to grey only what it reads."""
 
-    def detect_converting(self, pixels: npt.NDArray[np.uint8], code: int) -> list[Detection]:
-        """Return what ``detect(cv2.cvtColor(pixels, code))`` would."""
+    def detect_converting(
+        self, pixels: npt.NDArray[np.uint8], code: int, max_chroma: float
+    ) -> list[Detection]:
+        """Return what ``detect(cv2.cvtColor(pixels, code))`` would, without the candidates
+        whose chroma (:mod:`zenoh_perception.detect.colour`) exceeds ``max_chroma`` (0: no
+        colour check)."""
         ...
 
 

@@ -71,8 +71,9 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
 
 class TagFinder:
     """What runs on every frame, in the service and in the bench: the detector, fed the colour
-    frame when it converts only what it reads (else the frame converted to grey), then the
-    colour check (``max_chroma`` 0: off) on colour frames."""
+    frame when it converts only what it reads, and then it also runs the colour check
+    (``max_chroma``, 0: off) on its candidates; else the detector on the frame converted to
+    grey, then the colour check on the detections of colour frames."""
 
     def __init__(self, detector: Detector, dictionary: str, max_chroma: float) -> None:
         self.detector = detector
@@ -84,15 +85,15 @@ class TagFinder:
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting the whole frame to grey
         first (0 when the detector converts what it reads: its time then includes that)."""
-        start = time.perf_counter()
-        converted = start
         code = frame.encoding.to_gray
         if code is not None and self._converting is not None:
-            detections = self._converting.detect_converting(frame.pixels, code)
-        else:
-            gray = to_gray(frame)
-            converted = time.perf_counter()
-            detections = self.detector.detect(gray)
+            # it checks the colour of its candidates itself, before refining them
+            detections = self._converting.detect_converting(frame.pixels, code, self._max_chroma)
+            return detections, 0.0
+        start = time.perf_counter()
+        gray = to_gray(frame)
+        converted = time.perf_counter()
+        detections = self.detector.detect(gray)
         if self._chroma is not None and detections and frame.pixels.ndim == 3:
             # tags are black on white: coloured look-alikes (signs, icons) go here
             detections = self._chroma.keep(frame.pixels, detections, self._max_chroma)

@@ -29,6 +29,7 @@ from zenoh_perception.detect.refine import MarkerModel
 from zenoh_perception.detection import Detection
 
 Image = npt.NDArray[np.uint8]
+Quad = npt.NDArray[np.float64]  # (4, 2) corners
 
 #: Default largest chroma of a real (black on white) tag; see the module doc.
 DEFAULT_MAX_CHROMA: Final = 0.2
@@ -38,21 +39,28 @@ _MIN_DIFFERENCE: Final = 1.0  # grey levels; guards the division on a flat patch
 class ChromaCheck:
     """Chroma of detections of one ArUco dictionary (see the module doc)."""
 
-    def __init__(self, dictionary: Any) -> None:
-        self._model = MarkerModel(dictionary)  # cell centres, homographies, black cells
+    def __init__(self, dictionary: Any, model: MarkerModel | None = None) -> None:
+        # cell centres, homographies, black cells (a detector passes the model it has)
+        self._model = model if model is not None else MarkerModel(dictionary)
 
     def chroma_many(self, image: Image, detections: Sequence[Detection]) -> list[float]:
         """Chroma of each detection in ``image`` (H, W, 3 or 4 channels; a 4th is ignored)."""
+        return self.chroma_of(
+            image, [(det.tag_id, np.asarray(det.corners, dtype=np.float64)) for det in detections]
+        )
+
+    def chroma_of(self, image: Image, candidates: Sequence[tuple[int, Quad]]) -> list[float]:
+        """Chroma of each (id, corners) in ``image``: :meth:`chroma_many` of candidates that
+        are not detections yet (a detector checks them before its costlier checks)."""
         if image.ndim != 3 or image.shape[2] < 3:
             msg = f"expected a colour image (H, W, 3 or 4), got shape {image.shape}"
             raise ValueError(msg)
-        if not detections:
+        if not candidates:
             return []
-        corners = [np.asarray(det.corners, dtype=np.float64) for det in detections]
-        values = self._model.cell_samples(image, corners)
-        black = np.array([self._model.black_cells(det.tag_id) for det in detections], float)
+        values = self._model.cell_samples(image, [quad for _, quad in candidates])
+        black = np.array([self._model.black_cells(tag_id) for tag_id, _ in candidates], float)
         white = 1.0 - black
-        # per detection and channel: mean over its white cells - mean over its black cells
+        # per candidate and channel: mean over its white cells - mean over its black cells
         sums = np.matmul(np.stack([white, black], axis=1), values[:, :, :3])  # (n, 2, 3)
         counts = np.stack([white.sum(axis=1), black.sum(axis=1)], axis=1)[:, :, None]
         means = sums / counts
