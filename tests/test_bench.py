@@ -80,6 +80,8 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, 
         stats = entry["fast_stats"]
         assert stats["frames"] == entry["fast"]["frames"]
         assert 1 <= stats["full_scans"] <= stats["frames"]
+    # the look-alike frames hold coloured ones, which the colour check drops before the fit
+    assert report["sets"]["distractors"]["fast_stats"]["colour_rejected"] > 0
     assert report["sets"]["video"]["fast"]["frames"] == quick.video_frames
     assert report["sets"]["VGA"]["fast"]["frames"] == quick.frames
     # look-alikes fool the baseline, and the centre error of what the project finds is small

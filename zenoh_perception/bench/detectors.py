@@ -64,7 +64,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -965,16 +965,7 @@ def _measure(
 
 
 def _stats(detector: FastDetector) -> dict[str, int]:
-    s = detector.stats
-    return {
-        "frames": s.frames,
-        "full_scans": s.full_scans,
-        "scene_cuts": s.scene_cuts,
-        "followed_direct": s.followed_direct,
-        "followed_roi": s.followed_roi,
-        "lost": s.lost,
-        "rejected": s.rejected,
-    }
+    return asdict(detector.stats)  # every counter, the colour check's rejections included
 
 
 def _end_to_end(sets: Sequence[FrameSet], progress: Progress, *, shm: bool) -> dict[str, Any]:
