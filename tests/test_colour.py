@@ -167,3 +167,12 @@ def test_checking_candidates_finds_what_checking_detections_finds() -> None:
         reported += len(early)
     assert rejected > 0  # the frames did hold coloured look-alikes
     assert reported > 0
+
+
+@pytest.mark.parametrize("detector", ["fast", "opencv"])
+def test_pipeline_drops_tags_smaller_than_the_minimum_side(detector: str) -> None:
+    image, _ = _tag_on_canvas(4, (240, 240, 240), (15, 15, 15))  # a 72 px tag
+    for min_side, expected in ((0.0, [4]), (70.0, [4]), (75.0, [])):
+        settings = Settings(detector=detector, min_tag_side_px=min_side)
+        analysis = Pipeline(settings).process(_frame(image))
+        assert [t.tag_id for t in analysis.tags] == expected, min_side

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from zenoh_perception.geometry import (
     closeness_from_area,
     closeness_from_distance,
+    mean_side,
     polygon_area,
     tag_center,
 )
@@ -112,3 +113,10 @@ def test_selection_is_the_minimum_and_order_independent(
     chosen = selected_message(tags, 640, 480)
     assert chosen.closeness_metric == min(t.closeness for t in tags)
     assert selected_message(list(reversed(tags)), 640, 480) == chosen
+
+
+def test_mean_side_of_a_square_and_a_rectangle() -> None:
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], dtype=np.float32)
+    assert mean_side(square) == pytest.approx(10.0)
+    rectangle = np.array([[5, 5], [25, 5], [25, 15], [5, 15]], dtype=np.float64)
+    assert mean_side(rectangle) == pytest.approx(15.0)  # (20 + 10 + 20 + 10) / 4

@@ -88,6 +88,7 @@ from zenoh_perception.detect.refine import (
 )
 from zenoh_perception.detection import Detection, aruco_dictionary
 from zenoh_perception.errors import SettingsError
+from zenoh_perception.geometry import mean_side
 
 Gray = npt.NDArray[np.uint8]
 Image = npt.NDArray[np.uint8]  # (H, W, C) colour
@@ -193,10 +194,7 @@ def _parameters(
     return params
 
 
-def _side(quad: Quad) -> float:
-    """Mean side length (plain floats: numpy calls on 4 points cost more than the maths)."""
-    p = quad.tolist()
-    return sum(math.dist(p[i], p[(i + 1) % 4]) for i in range(4)) / 4.0
+_side = mean_side  # (plain floats: numpy calls on 4 points cost more than the maths)
 
 
 def _centre(quad: Quad) -> tuple[float, float]:

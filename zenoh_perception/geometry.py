@@ -51,6 +51,12 @@ def polygon_area(corners: Corners) -> float:
     return abs(twice) / 2.0
 
 
+def mean_side(corners: Corners) -> float:
+    """Mean length of the four sides of the corner polygon, in pixels."""
+    pts = _points(corners)
+    return sum(math.dist(p, q) for p, q in zip(pts, pts[1:] + pts[:1], strict=True)) / len(pts)
+
+
 def clamp_unit(value: float) -> float:
     """Clamp to [0, 1]; NaN counts as far (1)."""
     if math.isnan(value):

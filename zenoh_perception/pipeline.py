@@ -20,6 +20,7 @@ from zenoh_perception.frames import Frame, to_gray
 from zenoh_perception.geometry import (
     closeness_from_area,
     closeness_from_distance,
+    mean_side,
     polygon_area,
     tag_center,
 )
@@ -75,8 +76,11 @@ class TagFinder:
     (``max_chroma``, 0: off) on its candidates; else the detector on the frame converted to
     grey, then the colour check on the detections of colour frames."""
 
-    def __init__(self, detector: Detector, dictionary: str, max_chroma: float) -> None:
+    def __init__(
+        self, detector: Detector, dictionary: str, max_chroma: float, min_side_px: float = 0.0
+    ) -> None:
         self.detector = detector
+        self._min_side_px = min_side_px
         # decided once: a runtime Protocol check inspects the object on every call
         self._converting = detector if isinstance(detector, ConvertingDetector) else None
         self._max_chroma = max_chroma
@@ -89,7 +93,7 @@ class TagFinder:
         if code is not None and self._converting is not None:
             # it checks the colour of its candidates itself, before refining them
             detections = self._converting.detect_converting(frame.pixels, code, self._max_chroma)
-            return detections, 0.0
+            return self._large_enough(detections), 0.0
         start = time.perf_counter()
         gray = to_gray(frame)
         converted = time.perf_counter()
@@ -97,7 +101,12 @@ class TagFinder:
         if self._chroma is not None and detections and frame.pixels.ndim == 3:
             # tags are black on white: coloured look-alikes (signs, icons) go here
             detections = self._chroma.keep(frame.pixels, detections, self._max_chroma)
-        return detections, converted - start
+        return self._large_enough(detections), converted - start
+
+    def _large_enough(self, detections: list[Detection]) -> list[Detection]:
+        if self._min_side_px <= 0.0 or not detections:
+            return detections
+        return [d for d in detections if mean_side(d.corners) >= self._min_side_px]
 
 
 class Pipeline:
@@ -117,7 +126,9 @@ class Pipeline:
                 full_scan_period=settings.full_scan_period,
                 scan_threads=settings.scan_threads,
             )
-        self._finder = TagFinder(detector, settings.dictionary, settings.max_tag_chroma)
+        self._finder = TagFinder(
+            detector, settings.dictionary, settings.max_tag_chroma, settings.min_tag_side_px
+        )
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)
 
