@@ -74,7 +74,8 @@ class TagFinder:
     """What runs on every frame, in the service and in the bench: the detector, fed the colour
     frame when it converts only what it reads, and then it also runs the colour check
     (``max_chroma``, 0: off) on its candidates; else the detector on the frame converted to
-    grey, then the colour check on the detections of colour frames."""
+    grey, then the colour check on the detections of colour frames. Last, tags whose mean side
+    is shorter than ``min_side_px`` (0: off) are dropped."""
 
     def __init__(
         self, detector: Detector, dictionary: str, max_chroma: float, min_side_px: float = 0.0
@@ -84,7 +85,10 @@ class TagFinder:
         # decided once: a runtime Protocol check inspects the object on every call
         self._converting = detector if isinstance(detector, ConvertingDetector) else None
         self._max_chroma = max_chroma
-        self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if max_chroma > 0 else None
+        # the check after detection: a converting detector runs its own (every colour encoding
+        # has a grey conversion, so it is the one that gets colour frames)
+        after = max_chroma > 0 and self._converting is None
+        self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if after else None
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting the whole frame to grey
