@@ -9,7 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA, ChromaCheck
+from zenoh_perception.detect.colour import (
+    DEFAULT_MAX_CHROMA,
+    NO_COLOUR_CHECK,
+    ChromaCheck,
+    ColourLimits,
+    ColourMeasure,
+)
+from zenoh_perception.detect.refine import MarkerModel
 from zenoh_perception.detection import Detection, aruco_dictionary
 from zenoh_perception.fast_detector import FastDetector
 from zenoh_perception.frames import ENCODINGS, Frame
@@ -18,6 +25,7 @@ from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 from zenoh_perception.settings import Settings
 
 DICT = aruco_dictionary("DICT_4X4_50")
+LIMITS = ColourLimits()  # the defaults
 CELL = 12  # pixels per cell of the drawn tags
 SIDE = 6 * CELL
 
@@ -48,14 +56,17 @@ def _tag_on_canvas(
 
 def test_a_black_on_white_tag_has_no_chroma() -> None:
     image, det = _tag_on_canvas(7, (250, 250, 250), (15, 15, 15))
-    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
-    assert chroma < 0.01
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
+    assert measure.chroma < 0.01
+    assert measure.black_tint < 0.01
+    assert measure.achromatic(LIMITS)
 
 
 def test_a_yellow_pictogram_on_a_dark_box_is_colourful() -> None:
     image, det = _tag_on_canvas(7, (20, 220, 250), (25, 30, 20), quiet_zone=False)
-    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
-    assert chroma > 0.5
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
+    assert measure.chroma > 0.5
+    assert not measure.achromatic(LIMITS)
 
 
 @given(
@@ -70,10 +81,54 @@ def test_tags_under_any_near_white_light_pass(
     white = tuple(round(offset + gain * 230 * t) for t in tint)
     black = (offset, offset, offset)
     image, det = _tag_on_canvas(3, white, black)  # type: ignore[arg-type]
-    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
     spread = (max(tint) - min(tint)) / (sum(tint) / 3.0)  # the light's own chroma
-    assert chroma <= spread + 0.02  # (rounding to integers)
-    assert chroma < DEFAULT_MAX_CHROMA
+    assert measure.chroma <= spread + 0.02  # (rounding to integers)
+    assert measure.black_tint < 1.0  # a grey black under tinted light: the black level
+    assert measure.achromatic(LIMITS)
+
+
+@given(
+    gain=st.floats(0.3, 0.9),
+    ink=st.floats(0.02, 0.15),
+    tint=st.tuples(*[st.floats(0.9, 1.0)] * 3),
+)
+def test_black_ink_may_take_the_colour_of_the_light(
+    gain: float, ink: float, tint: tuple[float, float, float]
+) -> None:
+    """Ink reflects the light's colour too: a black tinted like the white, dimmer, passes."""
+    white = tuple(round(gain * 230 * t) for t in tint)
+    black = tuple(round(ink * gain * 230 * t) for t in tint)
+    image, det = _tag_on_canvas(3, white, black)  # type: ignore[arg-type]
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
+    assert measure.black_tint < 1.0  # (rounding to integers)
+    assert measure.achromatic(LIMITS)
+
+
+def _noisy(image: npt.NDArray[np.uint8], sigma: float, seed: int) -> npt.NDArray[np.uint8]:
+    noise = np.random.default_rng(seed).normal(0.0, sigma, image.shape)
+    return np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("dark", [(40, 30, 18), (48, 26, 30), (22, 34, 26)])
+def test_a_white_pictogram_on_a_tinted_dark_box_is_caught(dark: tuple[int, int, int]) -> None:
+    """The contrast of a white code on a dark brown, purple or green box is near grey (the
+    first measure passes it); its dark is not the colour of the light."""
+    image, det = _tag_on_canvas(7, (235, 235, 235), dark, background=(235, 235, 235))
+    (measure,) = ChromaCheck(DICT).measure(_noisy(image, 3.0, seed=1), [det])
+    assert measure.chroma < DEFAULT_MAX_CHROMA
+    assert measure.black_tint > 5.0
+    assert measure.black_tint_z > 10.0
+    assert not measure.achromatic(LIMITS)
+
+
+def test_noise_alone_does_not_tint_the_black() -> None:
+    """Heavy sensor noise on a grey black: the tint is within its standard error."""
+    image, det = _tag_on_canvas(7, (200, 200, 200), (30, 30, 30))
+    check = ChromaCheck(DICT)
+    measures = [check.measure(_noisy(image, 12.0, seed), [det])[0] for seed in range(40)]
+    assert max(m.black_tint for m in measures) > 2.0  # the noise does move the mean...
+    assert all(m.achromatic(LIMITS) for m in measures)  # ...within its error
 
 
 @given(channel=st.integers(0, 2), strength=st.floats(0.5, 1.0))
@@ -81,8 +136,8 @@ def test_a_code_printed_in_one_colour_is_caught(channel: int, strength: float) -
     white = [40, 40, 40]
     white[channel] = 40 + round(200 * strength)
     image, det = _tag_on_canvas(11, tuple(white), (20, 20, 20))  # type: ignore[arg-type]
-    (chroma,) = ChromaCheck(DICT).chroma_many(image, [det])
-    assert chroma > DEFAULT_MAX_CHROMA
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
+    assert measure.chroma > DEFAULT_MAX_CHROMA
 
 
 def test_keep_filters_and_needs_colour() -> None:
@@ -91,11 +146,11 @@ def test_keep_filters_and_needs_colour() -> None:
     wide = np.concatenate([image, coloured], axis=1)  # the coloured one 200 px to the right
     fake = Detection(9, fake.corners + np.array([200.0, 0.0], dtype=np.float32))
     check = ChromaCheck(DICT)
-    assert [d.tag_id for d in check.keep(wide, [real, fake], DEFAULT_MAX_CHROMA)] == [5]
-    assert [d.tag_id for d in check.keep(wide, [real, fake], 10.0)] == [5, 9]
-    assert check.keep(wide, [], DEFAULT_MAX_CHROMA) == []
+    assert [d.tag_id for d in check.keep(wide, [real, fake], LIMITS)] == [5]
+    assert [d.tag_id for d in check.keep(wide, [real, fake], ColourLimits(10.0))] == [5, 9]
+    assert check.keep(wide, [], LIMITS) == []
     with pytest.raises(ValueError, match="colour image"):
-        check.chroma_many(np.zeros((20, 20), dtype=np.uint8), [real])
+        check.measure(np.zeros((20, 20), dtype=np.uint8), [real])
 
 
 def _frame(image: npt.NDArray[np.uint8]) -> Frame:
@@ -106,17 +161,30 @@ def _frame(image: npt.NDArray[np.uint8]) -> Frame:
 def test_pipeline_drops_a_coloured_code_unless_the_check_is_off(detector: str) -> None:
     image, _ = _tag_on_canvas(9, (20, 220, 250), (25, 30, 20), background=(235, 235, 235))
     on = Pipeline(Settings(detector=detector)).process(_frame(image))
-    off = Pipeline(Settings(detector=detector, max_tag_chroma=0.0)).process(_frame(image))
+    unchecked = Settings(detector=detector, max_tag_chroma=0.0, max_black_tint=0.0)
+    off = Pipeline(unchecked).process(_frame(image))
     assert [t.tag_id for t in off.tags] == [9]  # it decodes: a look-alike in grey
     assert on.tags == ()
     assert on.selected.tag_id == -1
+
+
+@pytest.mark.parametrize("detector", ["fast", "opencv"])
+def test_pipeline_drops_a_white_code_on_a_tinted_box_unless_the_tint_check_is_off(
+    detector: str,
+) -> None:
+    image, _ = _tag_on_canvas(6, (235, 235, 235), (40, 30, 18), background=(235, 235, 235))
+    image = _noisy(image, 2.0, seed=3)
+    on = Pipeline(Settings(detector=detector)).process(_frame(image))
+    off = Pipeline(Settings(detector=detector, max_black_tint=0.0)).process(_frame(image))
+    assert [t.tag_id for t in off.tags] == [6]  # the contrast check alone passes it
+    assert on.tags == ()
 
 
 def test_generated_tags_pass_the_check() -> None:
     """Real tags of generated scenes (lighting, noise, blur) measure far below the limit."""
     generator = SceneGenerator(CameraModel.named("VGA"), seed=5, effects=Effects.realistic())
     check = ChromaCheck(DICT)
-    chroma: list[float] = []
+    measures: list[ColourMeasure] = []
     for _ in range(6):
         scene = generator.random_scene(4, 0, size_m=(0.15, 0.3), distance_m=(0.8, 3.0))
         truth = [
@@ -124,23 +192,24 @@ def test_generated_tags_pass_the_check() -> None:
             for m in scene.markers
             if m.visible and not m.occluded
         ]
-        chroma += check.chroma_many(scene.image, truth)
-    assert len(chroma) >= 12
-    assert max(chroma) < DEFAULT_MAX_CHROMA / 2
+        measures += check.measure(scene.image, truth)
+    assert len(measures) >= 12
+    assert max(m.chroma for m in measures) < DEFAULT_MAX_CHROMA / 2
+    assert all(m.achromatic(LIMITS) for m in measures)
 
 
 def test_the_fast_detector_checks_colour_before_refining() -> None:
     """A code printed yellow on dark green, quiet zone included, is a marker in grey: the
     detector's own check drops it before the model fit ever sees it."""
     image, _ = _tag_on_canvas(9, (20, 220, 250), (25, 60, 20), background=(120, 120, 120))
-    unchecked = FastDetector().detect_converting(image, cv2.COLOR_BGRA2GRAY, 0.0)
+    unchecked = FastDetector().detect_converting(image, cv2.COLOR_BGRA2GRAY, NO_COLOUR_CHECK)
     assert [d.tag_id for d in unchecked] == [9]
     detector = FastDetector()
-    assert detector.detect_converting(image, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA) == []
+    assert detector.detect_converting(image, cv2.COLOR_BGRA2GRAY, LIMITS) == []
     assert detector.stats.colour_rejected >= 1
     assert detector.stats.rejected == 0  # never refined and fitted
     grey, real = _tag_on_canvas(9, (235, 235, 235), (20, 20, 20))
-    kept = FastDetector().detect_converting(grey, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA)
+    kept = FastDetector().detect_converting(grey, cv2.COLOR_BGRA2GRAY, LIMITS)
     assert [d.tag_id for d in kept] == [real.tag_id]
 
 
@@ -153,12 +222,12 @@ def test_checking_candidates_finds_what_checking_detections_finds() -> None:
     for _ in range(12):
         scene = generator.random_scene(2, 6)
         detector = FastDetector()
-        early = detector.detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, DEFAULT_MAX_CHROMA)
+        early = detector.detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, LIMITS)
         rejected += detector.stats.colour_rejected
         late = check.keep(
             scene.image,
-            FastDetector().detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, 0.0),
-            DEFAULT_MAX_CHROMA,
+            FastDetector().detect_converting(scene.image, cv2.COLOR_BGRA2GRAY, NO_COLOUR_CHECK),
+            LIMITS,
         )
         assert [d.tag_id for d in early] == [d.tag_id for d in late]
         for a, b in zip(early, late, strict=True):
@@ -176,3 +245,44 @@ def test_pipeline_drops_tags_smaller_than_the_minimum_side(detector: str) -> Non
         settings = Settings(detector=detector, min_tag_side_px=min_side)
         analysis = Pipeline(settings).process(_frame(image))
         assert [t.tag_id for t in analysis.tags] == expected, min_side
+
+
+def _reference_measure(
+    values: npt.NDArray[np.float64], black: npt.NDArray[np.bool_]
+) -> tuple[float, float, float]:
+    """The module doc's measures, spelled out on arrays: (chroma, black tint, tint / error)."""
+    white_mean, black_mean = values[~black].mean(axis=0), values[black].mean(axis=0)
+    difference = white_mean - black_mean
+    chroma = float(np.ptp(difference) / max(difference.mean(), 1.0))
+    allowed = (white_mean - white_mean.mean()) * black_mean.mean() / max(white_mean.mean(), 1.0)
+    black_chroma = black_mean - black_mean.mean()
+    share = 0.0
+    if allowed @ allowed > 0.0:
+        share = float(np.clip(black_chroma @ allowed / (allowed @ allowed), 0.0, 1.0))
+    excess = np.abs(black_chroma - share * allowed)
+    channel = int(np.argmax(excess))
+    cells = values[black] - values[black].mean(axis=1, keepdims=True)
+    error = max(float(cells[:, channel].std(ddof=1)) / np.sqrt(len(cells)), 0.1)
+    return chroma, float(excess[channel]), float(excess[channel]) / error
+
+
+@given(seed=st.integers(0, 2**32 - 1), tint=st.floats(-20.0, 20.0), noise=st.floats(0.0, 15.0))
+def test_the_measures_match_a_reference_implementation(
+    seed: int, tint: float, noise: float
+) -> None:
+    """On a drawn tag's cell samples, the sums of squares the check uses give what the plain
+    formulas give."""
+    rng = np.random.default_rng(seed)
+    tag_id = int(rng.integers(50))
+    white = tuple(int(v) for v in rng.integers(120, 250, 3))
+    dark = tuple(int(np.clip(30 + tint * rng.uniform(-1, 1), 0, 255)) for _ in range(3))
+    image, det = _tag_on_canvas(tag_id, white, dark)  # type: ignore[arg-type]
+    image = _noisy(image, noise, seed)
+    (measure,) = ChromaCheck(DICT).measure(image, [det])
+    # the same cell-centre samples as the check's
+    corners = np.asarray(det.corners, dtype=np.float64)
+    samples = MarkerModel(DICT).cell_samples(image, [corners])[0, :, :3]
+    cells = cv2.aruco.generateImageMarker(DICT, tag_id, 6, borderBits=1) < 128
+    expected = _reference_measure(samples, cells.ravel())
+    got = (measure.chroma, measure.black_tint, measure.black_tint_z)
+    np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-9)

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.errors import SettingsError
+
+if TYPE_CHECKING:  # (the colour check's module imports this one)
+    from zenoh_perception.detect.colour import ColourLimits
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,11 +39,11 @@ class ConvertingDetector(Protocol):
     """A detector that takes the colour frame and converts to grey only what it reads."""
 
     def detect_converting(
-        self, pixels: npt.NDArray[np.uint8], code: int, max_chroma: float
+        self, pixels: npt.NDArray[np.uint8], code: int, colour: ColourLimits | None
     ) -> list[Detection]:
         """Return what ``detect(cv2.cvtColor(pixels, code))`` would, without the candidates
-        whose chroma (:mod:`zenoh_perception.detect.colour`) exceeds ``max_chroma`` (0: no
-        colour check)."""
+        that fail the colour check (:mod:`zenoh_perception.detect.colour`) within ``colour``
+        (None: no colour check)."""
         ...
 
 

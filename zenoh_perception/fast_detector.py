@@ -45,7 +45,7 @@ run; the baseline is BGRA->BGR + ``cv2.aruco.ArucoDetector`` with default parame
 6. The colour check (:mod:`zenoh_perception.detect.colour`: tags are black on white, so a
    coloured look-alike is not a tag) runs on the scan's and the region searches' candidates
    before they are refined and fitted, when :meth:`FastDetector.detect_converting` has the
-   colour frame and a ``max_chroma``: on independent HD720 frames about one candidate in seven
+   colour frame and colour limits: on independent HD720 frames about one candidate in seven
    is a coloured look-alike, and it then costs no refinement; a followed marker, checked when
    its track started, is not checked again on every frame (the pipeline checked every
    detection of every frame before: 0.13 ms a frame on the video).
@@ -75,7 +75,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.colour import ChromaCheck
+from zenoh_perception.detect.colour import ChromaCheck, ColourLimits
 from zenoh_perception.detect.refine import (
     FitRequest,
     MarkerModel,
@@ -223,8 +223,8 @@ class FastDetector:
         self._pool: ThreadPoolExecutor | None = None
         self._grey_buffer: Gray | None = None  # detect_converting's grey frame
         self._chroma = ChromaCheck(self._dictionary, self._model)
-        # this frame's colour pixels and largest tag chroma, when detect_converting checks it
-        self._colour: tuple[Image, float] | None = None
+        # this frame's colour pixels and colour limits, when detect_converting checks them
+        self._colour: tuple[Image, ColourLimits] | None = None
         self.stats = DetectorStats()
 
     def close(self) -> None:
@@ -248,7 +248,7 @@ class FastDetector:
         return self._detect(_Grey(gray))
 
     def detect_converting(
-        self, pixels: Image, code: int, max_chroma: float = 0.0
+        self, pixels: Image, code: int, colour: ColourLimits | None = None
     ) -> list[Detection]:
         """:meth:`detect` of ``cv2.cvtColor(pixels, code)``, with the same result, converting
         only the parts of the frame it reads: on a frame where every tracked marker is
@@ -256,7 +256,7 @@ class FastDetector:
         whole frame only when a full scan runs. (The grey frame is kept between frames: the
         conversion would otherwise cost a third of a followed frame.)
 
-        ``max_chroma`` > 0: the colour check (:mod:`zenoh_perception.detect.colour`) on every
+        ``colour``: the colour check (:mod:`zenoh_perception.detect.colour`) on every
         candidate before it is refined and fitted: coloured look-alikes cost no refinement
         and never become tracks, and a followed marker is not checked again on every frame.
         """
@@ -266,8 +266,8 @@ class FastDetector:
         height, width = int(pixels.shape[0]), int(pixels.shape[1])
         if self._grey_buffer is None or self._grey_buffer.shape != (height, width):
             self._grey_buffer = np.empty((height, width), dtype=np.uint8)
-        usable = max_chroma > 0.0 and pixels.shape[2] >= 3
-        self._colour = (pixels, max_chroma) if usable else None
+        usable = colour is not None and colour.active and pixels.shape[2] >= 3
+        self._colour = (pixels, colour) if usable and colour is not None else None
         try:
             return self._detect(_Converting(pixels, code, self._grey_buffer))
         finally:
@@ -410,9 +410,9 @@ class FastDetector:
         """The candidates that pass this frame's colour check (all of them without one)."""
         if self._colour is None or not candidates:
             return candidates
-        pixels, max_chroma = self._colour
-        chroma = self._chroma.chroma_of(pixels, candidates)
-        kept = [c for c, value in zip(candidates, chroma, strict=True) if value <= max_chroma]
+        pixels, limits = self._colour
+        measures = self._chroma.measure_candidates(pixels, candidates)
+        kept = [c for c, m in zip(candidates, measures, strict=True) if m.achromatic(limits)]
         self.stats.colour_rejected += len(candidates) - len(kept)
         return kept
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from zenoh_perception.detect.colour import ChromaCheck
+from zenoh_perception.detect.colour import ChromaCheck, ColourLimits
 from zenoh_perception.detection import (
     ConvertingDetector,
     Detection,
@@ -73,21 +73,25 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
 class TagFinder:
     """What runs on every frame, in the service and in the bench: the detector, fed the colour
     frame when it converts only what it reads, and then it also runs the colour check
-    (``max_chroma``, 0: off) on its candidates; else the detector on the frame converted to
+    (within ``colour``) on its candidates; else the detector on the frame converted to
     grey, then the colour check on the detections of colour frames. Last, tags whose mean side
     is shorter than ``min_side_px`` (0: off) are dropped."""
 
     def __init__(
-        self, detector: Detector, dictionary: str, max_chroma: float, min_side_px: float = 0.0
+        self,
+        detector: Detector,
+        dictionary: str,
+        colour: ColourLimits,
+        min_side_px: float = 0.0,
     ) -> None:
         self.detector = detector
         self._min_side_px = min_side_px
         # decided once: a runtime Protocol check inspects the object on every call
         self._converting = detector if isinstance(detector, ConvertingDetector) else None
-        self._max_chroma = max_chroma
+        self._colour = colour
         # the check after detection: a converting detector runs its own (every colour encoding
         # has a grey conversion, so it is the one that gets colour frames)
-        after = max_chroma > 0 and self._converting is None
+        after = colour.active and self._converting is None
         self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if after else None
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
@@ -96,7 +100,7 @@ class TagFinder:
         code = frame.encoding.to_gray
         if code is not None and self._converting is not None:
             # it checks the colour of its candidates itself, before refining them
-            detections = self._converting.detect_converting(frame.pixels, code, self._max_chroma)
+            detections = self._converting.detect_converting(frame.pixels, code, self._colour)
             return self._large_enough(detections), 0.0
         start = time.perf_counter()
         gray = to_gray(frame)
@@ -104,7 +108,7 @@ class TagFinder:
         detections = self.detector.detect(gray)
         if self._chroma is not None and detections and frame.pixels.ndim == 3:
             # tags are black on white: coloured look-alikes (signs, icons) go here
-            detections = self._chroma.keep(frame.pixels, detections, self._max_chroma)
+            detections = self._chroma.keep(frame.pixels, detections, self._colour)
         return self._large_enough(detections), converted - start
 
     def _large_enough(self, detections: list[Detection]) -> list[Detection]:
@@ -130,9 +134,8 @@ class Pipeline:
                 full_scan_period=settings.full_scan_period,
                 scan_threads=settings.scan_threads,
             )
-        self._finder = TagFinder(
-            detector, settings.dictionary, settings.max_tag_chroma, settings.min_tag_side_px
-        )
+        colour = ColourLimits(settings.max_tag_chroma, settings.max_black_tint)
+        self._finder = TagFinder(detector, settings.dictionary, colour, settings.min_tag_side_px)
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)
 

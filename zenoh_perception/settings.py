@@ -74,6 +74,10 @@ class Settings:
         default=0.2,
         metadata=_doc("colour frames: drop tags more colourful than this; 0 = off"),
     )
+    max_black_tint: float = field(
+        default=2.0,
+        metadata=_doc("colour frames: drop tags whose black is tinted more, grey levels; 0 = off"),
+    )
     min_tag_side_px: float = field(
         default=0.0,
         metadata=_doc("drop tags whose mean side is shorter than this, pixels; 0 = off"),
@@ -148,6 +152,7 @@ def _validate(settings: Settings) -> None:
     positive = ("max_range_m", "debug_image_max_hz")
     non_negative = (
         "max_tag_chroma",
+        "max_black_tint",
         "min_tag_side_px",
         "tag_size_m",
         "camera_fx",

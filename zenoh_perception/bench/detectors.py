@@ -77,7 +77,7 @@ import zenoh
 from zenoh_perception import __version__
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.soak import start_service, stop_service
-from zenoh_perception.detect.colour import DEFAULT_MAX_CHROMA
+from zenoh_perception.detect.colour import NO_COLOUR_CHECK, ColourLimits
 from zenoh_perception.detection import Detection, aruco_dictionary, detections_from_opencv
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.fast_detector import FastDetector, FastDetectorConfig
@@ -274,15 +274,16 @@ class Baseline:
 class Project:
     """A :class:`FastDetector` (one per frame set, like one per stream) run on the BGRA frame
     as the service's pipeline runs it (:class:`TagFinder`: it converts to grey the parts it
-    reads, then the colour check with ``max_chroma``, 0: off)."""
+    reads, then the colour check within ``colour``)."""
 
     name = "fast"
 
     def __init__(
-        self, config: FastDetectorConfig | None = None, max_chroma: float = DEFAULT_MAX_CHROMA
+        self, config: FastDetectorConfig | None = None, colour: ColourLimits | None = None
     ) -> None:
         self.detector = FastDetector(DICTIONARY, config)
-        self._finder = TagFinder(self.detector, DICTIONARY, max_chroma)
+        limits = ColourLimits() if colour is None else colour
+        self._finder = TagFinder(self.detector, DICTIONARY, limits)
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
@@ -828,9 +829,10 @@ def _levers() -> list[tuple[str, Callable[[], Any]]]:
     one = {"adaptiveThreshWinSizeMin": 5, "adaptiveThreshWinSizeMax": 5}
     read = {"perspectiveRemovePixelPerCell": 8, "errorCorrectionRate": 1.0}
     base = FastDetectorConfig()
+    contrast_only = ColourLimits(max_black_tint=0.0)
 
-    def fast(chroma: float = DEFAULT_MAX_CHROMA, **changes: Any) -> Callable[[], Any]:
-        return lambda: Project(replace(base, **changes), chroma)
+    def fast(colour: ColourLimits | None = None, **changes: Any) -> Callable[[], Any]:
+        return lambda: Project(replace(base, **changes), colour)
 
     return [
         ("baseline: BGRA->BGR, default parameters", Baseline),
@@ -860,14 +862,15 @@ def _levers() -> list[tuple[str, Callable[[], Any]]]:
             "5 px window + 8 px/cell + 1-bit correction",
             lambda: Baseline(_params(**one, **read), grey=True),
         ),
-        ("+ refined corners, model-fit check (no tracking)", fast(0.0, track=False)),
-        ("+ colour check (no tracking)", fast(track=False)),
+        ("+ refined corners, model-fit check (no tracking)", fast(NO_COLOUR_CHECK, track=False)),
+        ("+ colour check: contrast (no tracking)", fast(contrast_only, track=False)),
+        ("+ colour check: black tint (no tracking)", fast(track=False)),
         (f"+ tracking, full scan every {base.full_scan_period} frames (project)", fast()),
         ("tracking, full scan every 4 frames", fast(full_scan_period=4)),
         ("tracking, full scan every 16 frames", fast(full_scan_period=16)),
         ("no corner refinement (tracking on)", fast(refine=False)),
         ("no model-fit check (tracking on)", fast(verify=False)),
-        ("no colour check (tracking on)", fast(0.0)),
+        ("no colour check (tracking on)", fast(NO_COLOUR_CHECK)),
         ("scan shared by 2 threads (no tracking)", fast(track=False, scan_threads=2)),
         ("scan shared by 2 threads + tracking", fast(scan_threads=2)),
     ]
