@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gc
 import queue
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -10,13 +12,20 @@ import numpy as np
 import pytest
 import zenoh
 
-from tests.helpers import Collector, open_session, wait_for_subscriber, wait_until
+from tests.helpers import (
+    Collector,
+    loopback_config,
+    open_session,
+    wait_for_status,
+    wait_for_subscriber,
+    wait_until,
+)
 from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.messages import CAMERA_INFO_TYPE, TYPESTORE
 from zenoh_perception.records import TagCodec, decode_record, f32
 from zenoh_perception.scene import render_markers
 from zenoh_perception.selection import TagMessage
-from zenoh_perception.service import PerceptionService
+from zenoh_perception.service import PerceptionService, run
 from zenoh_perception.settings import Settings
 
 WIDTH, HEIGHT = 640, 480
@@ -227,3 +236,24 @@ def test_status_queryable_and_liveliness_token(rig: Rig) -> None:
         if reply.ok is not None:
             tokens.put(str(reply.ok.key_expr))
     assert tokens.get(timeout=1).startswith("perception/alive/")
+
+
+def test_run_moves_what_start_up_made_out_of_the_collectors_way(endpoint: str) -> None:
+    """A full garbage collection that scans the start-up objects stalls a frame: ``run`` freezes
+    them once the service is up."""
+    gc.unfreeze()
+    stop = threading.Event()
+    exit_codes: list[int] = []
+    conf = loopback_config(listen=[endpoint])
+    settings = Settings(stats_interval_s=0)
+    thread = threading.Thread(target=lambda: exit_codes.append(run(conf, settings, stop)))
+    thread.start()
+    try:
+        with open_session(connect=[endpoint]) as client:
+            wait_for_status(client)
+            wait_until(lambda: gc.get_freeze_count() > 0, what="start-up objects frozen")
+    finally:
+        stop.set()
+        thread.join(timeout=20)
+        gc.unfreeze()
+    assert exit_codes == [0]
