@@ -43,12 +43,13 @@ run; the baseline is BGRA->BGR + ``cv2.aruco.ArucoDetector`` with default parame
    result as converting first, without a third of a followed frame's cost.
 
 6. The colour check (:mod:`zenoh_perception.detect.colour`: tags are black on white, so a
-   coloured look-alike is not a tag) runs on the scan's and the region searches' candidates
-   before they are refined and fitted, when :meth:`FastDetector.detect_converting` has the
-   colour frame and colour limits: on independent HD720 frames about one candidate in seven
-   is a coloured look-alike, and it then costs no refinement; a followed marker, checked when
-   its track started, is not checked again on every frame (the pipeline checked every
-   detection of every frame before: 0.13 ms a frame on the video).
+   look-alike with a coloured contrast or a tinted black is not a tag) runs on the scan's
+   and the region searches' candidates before they are refined and fitted, when
+   :meth:`FastDetector.detect_converting` has the colour frame and colour limits: on
+   independent HD720 frames about one candidate in seven is a coloured look-alike, and it
+   then costs no refinement; a followed marker, checked when its track started, is not
+   checked again on every frame (the pipeline checked every detection of every frame
+   before: 0.13 ms a frame on the video).
 
 Guarantees: a marker that a full scan finds is reported at most ``full_scan_period`` frames
 after it appears, and on the very frame it appears when that frame is a scene cut or the tag
