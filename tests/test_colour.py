@@ -86,7 +86,9 @@ def test_tags_under_any_near_white_light_pass(
     image, det = _tag_on_canvas(3, white, black)  # type: ignore[arg-type]
     (measure,) = ChromaCheck(DICT).measure(image, [det])
     spread = (max(tint) - min(tint)) / (sum(tint) / 3.0)  # the light's own chroma
-    assert measure.chroma <= spread + 0.02  # (rounding to integers)
+    # drawn in integers: each channel's white-minus-black is off by up to 1 level
+    levels = (sum(white) - sum(black)) / 3.0
+    assert measure.chroma <= spread + 2.0 / levels + 0.01
     assert measure.black_tint < 1.0  # (rounding to integers)
     assert measure.achromatic(LIMITS)
 
