@@ -84,7 +84,6 @@ from zenoh_perception.detect.refine import (
     acceptance_threshold,
     bits_match,
     fit_many,
-    refine_corners,
     refine_many,
 )
 from zenoh_perception.detection import Detection, aruco_dictionary
@@ -195,9 +194,6 @@ def _parameters(
     return params
 
 
-_side = mean_side  # (plain floats: numpy calls on 4 points cost more than the maths)
-
-
 def _centre(quad: Quad) -> tuple[float, float]:
     p = quad.tolist()
     return (sum(x for x, _ in p) / 4.0, sum(y for _, y in p) / 4.0)
@@ -306,7 +302,7 @@ class FastDetector:
         may read: the search region of :meth:`_search_roi`, then the quiet ring and the edge
         profiles of a marker found at its border."""
         predicted = track.predicted(frame)
-        side = _side(predicted)
+        side = mean_side(predicted)
         margin = _search_margin(side, track) + 0.5 * side + 8.0
         x0, y0 = predicted.min(axis=0).tolist()
         x1, y1 = predicted.max(axis=0).tolist()
@@ -398,13 +394,13 @@ class FastDetector:
             corners, blur = result
             track = known if known is not None else self._nearest(tag_id, corners, frame)
             if track is None:
-                track = _Track(tag_id, corners, frame, frame, _side(corners))
+                track = _Track(tag_id, corners, frame, frame, mean_side(corners))
                 self._tracks.append(track)
             elif track.seen == frame:
                 continue  # a second candidate for a marker confirmed on this frame
             else:
                 track.update(corners, frame)
-                track.verified, track.verified_side = frame, _side(corners)
+                track.verified, track.verified_side = frame, mean_side(corners)
             track.blur_px = blur
 
     def _achromatic(self, candidates: list[tuple[int, Quad]]) -> list[tuple[int, Quad]]:
@@ -420,7 +416,7 @@ class FastDetector:
     def _nearest(self, tag_id: int, quad: Quad, frame: int) -> _Track | None:
         centre = _centre(quad)
         best: _Track | None = None
-        best_d = max(_side(quad), 20.0)
+        best_d = max(mean_side(quad), 20.0)
         for track in self._tracks:
             if track.tag_id != tag_id:
                 continue
@@ -483,10 +479,6 @@ class FastDetector:
             for c, r, ok in zip(corners, refined, passed, strict=True)
         ]
 
-    def _passes(self, gray: Gray, tag_id: int, corners: Quad, refined: Refined | None) -> bool:
-        """The model fit at ``corners`` says: a real marker ``tag_id``."""
-        return self._passes_many(gray, [(corners, tag_id)], [refined])[0]
-
     def _passes_many(
         self, gray: Gray, items: list[tuple[Quad, int]], refined: list[Refined | None]
     ) -> list[bool]:
@@ -502,13 +494,19 @@ class FastDetector:
         return verdicts
 
     def _follow_all(self, gray: Gray, frame: int) -> None:
-        """Find every tracked marker near its prediction (see :meth:`_follow`), refining and
-        fitting them all in one batch."""
+        """Find every tracked marker near its prediction, all in one batch: refine the
+        predicted corners directly; the model fit is redone every :data:`_REVERIFY_FRAMES`
+        frames or when the marker's size changed by more than :data:`_REVERIFY_SCALE` (the
+        border found where the marker was predicted, at the size it had, is the marker in
+        between), else its cells must still read as its id; a marker not found so is searched
+        for with the detector in a region around the prediction (the only way without
+        refinement)."""
         if not self._tracks:
             return
         if not self.config.refine:
             for track in self._tracks:
-                self._follow(gray, track, frame)
+                track.tried = frame
+                self._search(gray, track, frame)
             return
         predictions = [track.predicted(frame) for track in self._tracks]
         refined = refine_many(
@@ -523,7 +521,7 @@ class FastDetector:
                 search.append(track)
                 continue
             track.blur_px = r.blur_px
-            side = _side(r.corners)
+            side = mean_side(r.corners)
             recent = frame - track.verified < _REVERIFY_FRAMES
             if not self.config.verify:
                 self.stats.followed_direct += 1
@@ -551,7 +549,7 @@ class FastDetector:
                     continue
                 self.stats.followed_direct += 1
                 track.update(r.corners, frame)
-                track.verified, track.verified_side = frame, _side(r.corners)
+                track.verified, track.verified_side = frame, mean_side(r.corners)
         for track in search:
             self._search(gray, track, frame)
 
@@ -561,40 +559,12 @@ class FastDetector:
             corners, track.blur_px = found
             self.stats.followed_roi += 1
             track.update(corners, frame)
-            track.verified, track.verified_side = frame, _side(corners)
+            track.verified, track.verified_side = frame, mean_side(corners)
             return
         self.stats.lost += 1
 
-    def _follow(self, gray: Gray, track: _Track, frame: int) -> None:
-        """Find a tracked marker near its prediction: refine the predicted corners directly;
-        the model fit is redone every :data:`_REVERIFY_FRAMES` frames or when the marker's
-        size changed by more than :data:`_REVERIFY_SCALE` (the border found where the marker
-        was predicted, at the size it had, is the marker in between); then the detector in a
-        region around the prediction."""
-        track.tried = frame
-        predicted = track.predicted(frame)
-        if self.config.refine:
-            refined = refine_corners(
-                gray, predicted, self._cells, max_iterations=2, tolerance_px=_FOLLOW_TOLERANCE_PX
-            )
-            if refined is not None:
-                side = _side(refined.corners)
-                fresh = frame - track.verified < _REVERIFY_FRAMES
-                same_size = abs(side / track.verified_side - 1.0) < _REVERIFY_SCALE
-                track.blur_px = refined.blur_px
-                if (fresh and same_size) or not self.config.verify:
-                    self.stats.followed_direct += 1
-                    track.update(refined.corners, frame)
-                    return
-                if self._passes(gray, track.tag_id, refined.corners, refined):
-                    self.stats.followed_direct += 1
-                    track.update(refined.corners, frame)
-                    track.verified, track.verified_side = frame, side
-                    return
-        self._search(gray, track, frame)
-
     def _search_roi(self, gray: Gray, track: _Track, predicted: Quad) -> tuple[Quad, float] | None:
-        side = _side(predicted)
+        side = mean_side(predicted)
         margin = _search_margin(side, track)
         height, width = gray.shape
         x0 = max(int(predicted[:, 0].min() - margin), 0)
@@ -703,7 +673,7 @@ def _unique(candidates: list[tuple[int, Quad]]) -> list[tuple[int, Quad]]:
     places: list[tuple[int, tuple[float, float]]] = []
     for tag_id, quad in candidates:
         centre = _centre(quad)
-        limit = 0.3 * _side(quad)
+        limit = 0.3 * mean_side(quad)
         if not any(i == tag_id and math.dist(c, centre) < limit for i, c in places):
             kept.append((tag_id, quad))
             places.append((tag_id, centre))
