@@ -16,6 +16,7 @@ from dataclasses import MISSING, Field, asdict, dataclass, field, fields, replac
 from pathlib import Path
 from typing import Any
 
+from zenoh_perception.detect.colour import DEFAULT_MAX_BLACK_TINT, DEFAULT_MAX_CHROMA
 from zenoh_perception.detection import aruco_dictionary
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.fast_detector import FastDetectorConfig
@@ -71,11 +72,11 @@ class Settings:
         default=0, metadata=_doc("OpenCV worker threads; 0 = OpenCV's default")
     )
     max_tag_chroma: float = field(
-        default=0.2,
+        default=DEFAULT_MAX_CHROMA,
         metadata=_doc("colour frames: drop tags more colourful than this; 0 = off"),
     )
     max_black_tint: float = field(
-        default=2.0,
+        default=DEFAULT_MAX_BLACK_TINT,
         metadata=_doc("colour frames: drop tags whose black is tinted more, grey levels; 0 = off"),
     )
     min_tag_side_px: float = field(
