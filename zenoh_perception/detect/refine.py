@@ -452,7 +452,6 @@ class MarkerModel:
         # sample coordinates in cell units; the marker spans [0, cells], the ring [-1, 0]
         self._axis = (np.arange(per_axis) + 0.5) / FIT_SAMPLES_PER_CELL - 1.0
         gx, gy = np.meshgrid(self._axis, self._axis)
-        self._grid = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32).reshape(-1, 1, 2)
         self._grid_t = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])  # (3, N) homogeneous
         self._edges = np.arange(total + 1, dtype=np.float64) - 1.0  # cell boundaries
         # sample - cell edge offsets: few distinct values (the samples are on a grid)
@@ -669,12 +668,6 @@ class MarkerModel:
         """(3, 3) map from marker cell coordinates to the image for a marker at ``corners``."""
         h = cv2.getPerspectiveTransform(self._square, np.asarray(corners, dtype=np.float32))
         out: Floats = np.asarray(h, dtype=np.float64)
-        return out
-
-    def sample_points(self, corners: Quad) -> npt.NDArray[np.float32]:
-        """(N, 1, 2) image coordinates of the fit's sample points for a marker at ``corners``."""
-        h = self.homography(corners)
-        out = np.asarray(cv2.perspectiveTransform(self._grid, h), dtype=np.float32)
         return out
 
     def cell_samples(self, image: Gray, corners: Sequence[Quad]) -> Floats:
