@@ -94,15 +94,28 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, 
 def test_end_to_end_and_throughput_ran_through_service_processes(report: dict[str, Any]) -> None:
     e2e = report["e2e"]
     assert set(e2e) == {"HD720", "video"}
+    # the independent frames go through several passes (fresh services each), pooled
+    assert e2e["HD720"]["passes"] == Plan.quick().independent_passes > 1
+    assert e2e["video"]["passes"] == 1
     for name, entry in e2e.items():
-        assert set(entry) == {*E2E_DETECTORS, "baseline_detection", "camera"}  # no "none" row
+        assert set(entry) == {
+            *E2E_DETECTORS,
+            "baseline_detection",
+            "camera",
+            "passes",
+            "pass_ratios",
+        }  # no "none" row
+        passes = entry["passes"]
         for who in E2E_DETECTORS:
             summary = entry[who]
-            frames = report["sets"][name]["fast"]["frames"]
+            frames = report["sets"][name]["fast"]["frames"] * passes
             assert summary["frames"] == frames
             assert summary["records"] == frames  # every lockstep frame answered with a record
             assert 0.0 < summary["median_ms"] <= summary["p99_ms"]
-            assert summary["visible"] == report["sets"][name]["fast"]["visible"]
+            assert summary["visible"] == report["sets"][name]["fast"]["visible"] * passes
+            ratios = entry["pass_ratios"][who]
+            assert len(ratios) == passes
+            assert all(r > 0.0 for r in ratios)
             # the overhead column: e2e minus the service's own detect_ms, frame by frame
             assert 0.0 < summary["detect_median_ms"] < summary["p99_ms"]
             assert summary["overhead_median_ms"] is not None
@@ -125,6 +138,10 @@ def test_end_to_end_and_throughput_ran_through_service_processes(report: dict[st
         assert run["camera"]["shm"] is setup["shm"]
     text = format_report(report)
     assert "overhead med" in text
+    assert f"HD720 x{e2e['HD720']['passes']}" in text
+    each = ", ".join(f"{r:.2f}" for r in e2e["HD720"]["pass_ratios"]["fast"])
+    assert "median e2e / bare median per pass: opencv " in text
+    assert f"; fast {each}" in text
     assert "no detector" not in text
     assert setup["camera_put"] in text
 
