@@ -59,7 +59,7 @@ def report(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 def report_no_shm(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """A smaller quick run whose camera puts plain bytes."""
     path = tmp_path_factory.mktemp("bench") / "bench.json"
-    argv = ["bench", "--quick", "--no-shm", "--frames", "2", "--video-frames", "4"]
+    argv = ["bench", "--quick", "--no-shm", "--frames", "2", "--video-frames", "4", "--passes", "1"]
     assert cli.main([*argv, "--json", str(path)]) == 0
     data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
     return data
@@ -158,6 +158,12 @@ def test_no_shm_puts_plain_bytes_and_says_so(report_no_shm: dict[str, Any]) -> N
             assert entry[who]["records"] == entry[who]["frames"] > 0
             assert entry[who]["overhead_median_ms"] is not None
     assert "camera put: plain bytes" in format_report(report_no_shm)
+    # one pass: no per-pass figures to pool or list
+    assert report_no_shm["plan"]["e2e_passes"] == 1
+    notes = [g["note"] for g in report_no_shm["goals"] if "e2e / baseline" in g["goal"]]
+    assert len(notes) == 2  # the video's and the independent frames'
+    assert all(n.endswith("; one pass") for n in notes)
+    assert "per pass" not in format_report(report_no_shm)
 
 
 def test_a_service_that_fails_to_start_is_reported_with_its_output() -> None:

@@ -1232,6 +1232,8 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def _passes_note(entry: dict[str, Any]) -> str:
+    if entry["passes"] == 1:
+        return "one pass"
     each = ", ".join(f"{r:.2f}" for r in entry["pass_ratios"]["fast"])
     return f"{entry['passes']} passes pooled, each: {each}"
 
