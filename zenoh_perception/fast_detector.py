@@ -88,7 +88,7 @@ from zenoh_perception.detect.refine import (
 )
 from zenoh_perception.detection import Detection, aruco_dictionary
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.geometry import mean_side
+from zenoh_perception.geometry import mean_side, tag_center
 
 Gray = npt.NDArray[np.uint8]
 Image = npt.NDArray[np.uint8]  # (H, W, C) colour
@@ -196,11 +196,6 @@ def _parameters(
     # 0.3 px instead of 1 px): fewer iterations of our own edge refinement, at no scan cost
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     return params
-
-
-def _centre(quad: Quad) -> tuple[float, float]:
-    p = quad.tolist()
-    return (sum(x for x, _ in p) / 4.0, sum(y for _, y in p) / 4.0)
 
 
 class FastDetector:
@@ -418,13 +413,13 @@ class FastDetector:
         return kept
 
     def _nearest(self, tag_id: int, quad: Quad, frame: int) -> _Track | None:
-        centre = _centre(quad)
+        centre = tag_center(quad)
         best: _Track | None = None
         best_d = max(mean_side(quad), 20.0)
         for track in self._tracks:
             if track.tag_id != tag_id:
                 continue
-            dist = math.dist(_centre(track.predicted(frame)), centre)
+            dist = math.dist(tag_center(track.predicted(frame)), centre)
             if dist < best_d:
                 best, best_d = track, dist
         return best
@@ -585,7 +580,7 @@ class FastDetector:
             roi = np.asarray(cv2.resize(roi, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
             scale = (x1 - x0) / size[0]
         corners, ids, _ = self._roi_detector.detectMarkers(roi)
-        centre = _centre(predicted)
+        centre = tag_center(predicted)
         best: Quad | None = None
         best_d = math.inf
         shift = np.array([x0, y0], dtype=np.float64)
@@ -595,7 +590,7 @@ class FastDetector:
             if i == track.tag_id
         ]
         for _, full in self._achromatic(mine):
-            dist = math.dist(_centre(full), centre)
+            dist = math.dist(tag_center(full), centre)
             if dist < best_d:
                 best, best_d = full, dist
         if best is None:
@@ -676,7 +671,7 @@ def _unique(candidates: list[tuple[int, Quad]]) -> list[tuple[int, Quad]]:
     kept: list[tuple[int, Quad]] = []
     places: list[tuple[int, tuple[float, float]]] = []
     for tag_id, quad in candidates:
-        centre = _centre(quad)
+        centre = tag_center(quad)
         limit = 0.3 * mean_side(quad)
         if not any(i == tag_id and math.dist(c, centre) < limit for i, c in places):
             kept.append((tag_id, quad))
