@@ -715,7 +715,6 @@ def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> 
     keys: list[tuple[int, int, int, int, int]] = []
     homographies = []
     quads = np.array([np.asarray(c, dtype=np.float64).reshape(4, 2) for c, _, _ in requests])
-    corners32 = quads.astype(np.float32)
     for index, ((x0, y0, x1, y1, x2, y2, x3, y3), (_, tag_id, measured)) in enumerate(
         zip(quads.reshape(-1, 8).tolist(), requests, strict=True)
     ):
@@ -732,7 +731,7 @@ def fit_many(gray: Gray, requests: Sequence[FitRequest], model: MarkerModel) -> 
             blur = None
         todo.append((index, cell_px))
         keys.append(model._key(tag_id, cell_x, cell_y, blur))
-        homographies.append(cv2.getPerspectiveTransform(model._square, corners32[index]))
+        homographies.append(model.homography(quads[index]))
     if todo:
         all_models = model._models(keys)
         observed = model.sample_many(gray, np.stack(homographies))  # (m, N)
