@@ -48,8 +48,8 @@ tools:
 	fi
 
 lint: venv
-	$(BIN)/ruff check zenoh_perception tests
-	$(BIN)/ruff format --check zenoh_perception tests
+	$(BIN)/ruff check zenoh_perception tests corpus
+	$(BIN)/ruff format --check zenoh_perception tests corpus
 
 typecheck: venv
 	$(BIN)/mypy

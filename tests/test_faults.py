@@ -38,7 +38,8 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception.bench.flood import RESOLUTIONS, MarkerFrame, marker_frame, raw_attachment
-from zenoh_perception.detection import Detection, make_detector
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.types import Detection
 from zenoh_perception.records import TagCodec, decode_record
 from zenoh_perception.service import PerceptionService
 from zenoh_perception.settings import Settings
@@ -193,7 +194,7 @@ class _FailingOn:
     """The real detector, except that it raises cv2.error (as OpenCV does) on one frame width."""
 
     def __init__(self, width: int) -> None:
-        self._inner = make_detector("fast", "DICT_4X4_50")
+        self._inner = make_detector("tracking", "DICT_4X4_50")
         self._width = width
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:

@@ -83,7 +83,7 @@ def test_every_setting_has_a_flag() -> None:
         {"max_range_m": float("nan")},
         {"debug_jpeg_quality": 101},
         {"full_scan_period": 0},
-        {"scan_threads": 3},
+        {"full_scan_period": 1001},
         {"tag_key": ""},
         {"tag_sizes": {"x": 1}},
         {"tag_sizes": {"3": -1}},

@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 import zenoh
 
 from zenoh_perception import __version__, demo, echo, replay, service, status
-from zenoh_perception.bench import detectors as bench_detectors
+from zenoh_perception.bench import cli as bench_cli
 from zenoh_perception.errors import PerceptionError, SettingsError
 from zenoh_perception.logs import configure_logging
 from zenoh_perception.settings import add_settings_arguments, settings_from_args
@@ -114,7 +114,7 @@ _COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
     _add_echo,
     _add_status,
     replay.register,
-    bench_detectors.register,
+    bench_cli.register,
 )
 
 

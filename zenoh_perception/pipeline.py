@@ -8,14 +8,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from zenoh_perception.detect.colour import ChromaCheck, ColourLimits
-from zenoh_perception.detection import (
-    ConvertingDetector,
-    Detection,
-    Detector,
-    aruco_dictionary,
-    make_detector,
-)
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.frames import Frame, to_gray
 from zenoh_perception.geometry import (
     closeness_from_area,
@@ -71,50 +65,22 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
 
 
 class TagFinder:
-    """What runs on every frame, in the service and in the bench: the detector, fed the colour
-    frame when it converts only what it reads, and then it also runs the colour check
-    (within ``colour``) on its candidates; else the detector on the frame converted to
-    grey, then the colour check on the detections of colour frames. Last, tags whose mean side
-    is shorter than ``min_side_px`` (0: off) are dropped."""
+    """What runs on every frame, in the service and in the bench: the frame converted to grey,
+    the detector, then (``min_side_px`` > 0) tags whose mean side is shorter dropped."""
 
-    def __init__(
-        self,
-        detector: Detector,
-        dictionary: str,
-        colour: ColourLimits,
-        min_side_px: float = 0.0,
-    ) -> None:
+    def __init__(self, detector: Detector, min_side_px: float = 0.0) -> None:
         self.detector = detector
         self._min_side_px = min_side_px
-        # decided once: a runtime Protocol check inspects the object on every call
-        self._converting = detector if isinstance(detector, ConvertingDetector) else None
-        self._colour = colour
-        # the check after detection: a converting detector runs its own (every colour encoding
-        # has a grey conversion, so it is the one that gets colour frames)
-        after = colour.active and self._converting is None
-        self._chroma = ChromaCheck(aruco_dictionary(dictionary)) if after else None
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
-        """The tags in ``frame``, and the seconds spent converting the whole frame to grey
-        first (0 when the detector converts what it reads: its time then includes that)."""
-        code = frame.encoding.to_gray
-        if code is not None and self._converting is not None:
-            # it checks the colour of its candidates itself, before refining them
-            detections = self._converting.detect_converting(frame.pixels, code, self._colour)
-            return self._large_enough(detections), 0.0
+        """The tags in ``frame``, and the seconds spent converting it to grey first."""
         start = time.perf_counter()
         gray = to_gray(frame)
         converted = time.perf_counter()
         detections = self.detector.detect(gray)
-        if self._chroma is not None and detections and frame.pixels.ndim == 3:
-            # tags are black on white: coloured look-alikes (signs, icons) go here
-            detections = self._chroma.keep(frame.pixels, detections, self._colour)
-        return self._large_enough(detections), converted - start
-
-    def _large_enough(self, detections: list[Detection]) -> list[Detection]:
-        if self._min_side_px <= 0.0 or not detections:
-            return detections
-        return [d for d in detections if mean_side(d.corners) >= self._min_side_px]
+        if self._min_side_px > 0.0 and detections:
+            detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
+        return detections, converted - start
 
 
 class Pipeline:
@@ -129,13 +95,9 @@ class Pipeline:
             cv2.setNumThreads(settings.opencv_threads)
         if detector is None:
             detector = make_detector(
-                settings.detector,
-                settings.dictionary,
-                full_scan_period=settings.full_scan_period,
-                scan_threads=settings.scan_threads,
+                settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
             )
-        colour = ColourLimits(settings.max_tag_chroma, settings.max_black_tint)
-        self._finder = TagFinder(detector, settings.dictionary, colour, settings.min_tag_side_px)
+        self._finder = TagFinder(detector, settings.min_tag_side_px)
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)
 

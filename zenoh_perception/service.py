@@ -24,7 +24,7 @@ import zenoh
 
 from zenoh_perception import __version__
 from zenoh_perception.debug_image import annotate, encode_compressed_image
-from zenoh_perception.detection import Detector
+from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import FrameDecodeError, MessageDecodeError
 from zenoh_perception.frames import Frame, decode_image_cdr, decode_raw_frame, to_bgr
 from zenoh_perception.logs import kv

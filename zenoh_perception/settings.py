@@ -16,13 +16,10 @@ from dataclasses import MISSING, Field, asdict, dataclass, field, fields, replac
 from pathlib import Path
 from typing import Any
 
-from zenoh_perception.detect.colour import DEFAULT_MAX_BLACK_TINT, DEFAULT_MAX_CHROMA
-from zenoh_perception.detection import aruco_dictionary
+from zenoh_perception.detect.types import DETECTORS, dictionary_name
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.fast_detector import FastDetectorConfig
 from zenoh_perception.selection import Policy
 
-DETECTORS = ("fast", "opencv")
 METRICS = ("area", "distance")
 
 TagSizes = tuple[tuple[int, float], ...]
@@ -59,25 +56,15 @@ class Settings:
     # Detection
     dictionary: str = field(default="DICT_4X4_50", metadata=_doc("predefined ArUco dictionary"))
     detector: str = field(
-        default="fast", metadata=_doc("'fast' (tuned, tracking) or 'opencv' (OpenCV defaults)")
+        default="tracking",
+        metadata=_doc("'tracking' (OpenCV's detector, whole frames only when needed) or 'opencv'"),
     )
     full_scan_period: int = field(
-        default=8,
-        metadata=_doc("fast detector: full scan at least every N frames (new tags within N)"),
-    )
-    scan_threads: int = field(
-        default=1, metadata=_doc("fast detector: threads sharing a full scan, 1 or 2")
+        default=4,
+        metadata=_doc("tracking: whole-frame scan at least every N frames (new tags within N)"),
     )
     opencv_threads: int = field(
         default=0, metadata=_doc("OpenCV worker threads; 0 = OpenCV's default")
-    )
-    max_tag_chroma: float = field(
-        default=DEFAULT_MAX_CHROMA,
-        metadata=_doc("colour frames: drop tags more colourful than this; 0 = off"),
-    )
-    max_black_tint: float = field(
-        default=DEFAULT_MAX_BLACK_TINT,
-        metadata=_doc("colour frames: drop tags whose black is tinted more, grey levels; 0 = off"),
     )
     min_tag_side_px: float = field(
         default=0.0,
@@ -149,11 +136,9 @@ def _validate(settings: Settings) -> None:
     if settings.detector not in DETECTORS:
         msg = f"detector must be one of {', '.join(DETECTORS)}, not {settings.detector!r}"
         raise SettingsError(msg)
-    aruco_dictionary(settings.dictionary)
+    dictionary_name(settings.dictionary)
     positive = ("max_range_m", "debug_image_max_hz")
     non_negative = (
-        "max_tag_chroma",
-        "max_black_tint",
         "min_tag_side_px",
         "tag_size_m",
         "camera_fx",
@@ -174,10 +159,9 @@ def _validate(settings: Settings) -> None:
         if not math.isfinite(value) or value < 0:
             msg = f"{name} must be zero or positive, not {value!r}"
             raise SettingsError(msg)
-    # the fast detector's own checks (SettingsError naming the key)
-    FastDetectorConfig(
-        full_scan_period=settings.full_scan_period, scan_threads=settings.scan_threads
-    )
+    if not 1 <= settings.full_scan_period <= 1000:
+        msg = f"full_scan_period must be 1..1000, not {settings.full_scan_period}"
+        raise SettingsError(msg)
     if not 1 <= settings.debug_jpeg_quality <= 100:
         msg = f"debug_jpeg_quality must be 1..100, not {settings.debug_jpeg_quality}"
         raise SettingsError(msg)

@@ -36,7 +36,8 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.detection import Detection, Detector, make_detector
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.frames import RawFrameMeta
 from zenoh_perception.records import TagCodec, decode_record

@@ -152,13 +152,15 @@ def _frames(resolution: str, count: int = 8) -> list[MarkerFrame]:
     return frames
 
 
-def start_service(endpoint: str, log: TextIO, *extra: str) -> subprocess.Popen[bytes]:
-    """The real CLI listening on ``endpoint`` (loopback, no multicast scouting)."""
+def start_service(
+    endpoint: str, log: TextIO, *extra: str, module: Sequence[str] = ("zenoh_perception", "run")
+) -> subprocess.Popen[bytes]:
+    """The real CLI listening on ``endpoint`` (loopback, no multicast scouting); ``module``:
+    what ``python -m`` runs instead (the bench's transport floor)."""
     command = [
         sys.executable,
         "-m",
-        "zenoh_perception",
-        "run",
+        *module,
         "-l",
         endpoint,
         "--no-multicast-scouting",

@@ -1,24 +1,9 @@
-"""Building blocks of the project's detector (see :mod:`zenoh_perception.fast_detector`).
+"""Marker detection: OpenCV's ArUco detector decides what a marker is and which id it has.
 
-- :mod:`.refine`: sub-pixel corner refinement from the marker's outer border edges, and the
-  photometric model fit that tells real markers from look-alikes.
-- :mod:`.colour`: the colour check that drops coloured look-alikes (tags are black on white).
+- :mod:`.types`: :class:`~.types.Detection`, the :class:`~.types.Detector` protocol and the
+  names of the dictionaries and detectors (no OpenCV import: settings validate with these);
+- :mod:`.opencv`: ``cv2.aruco.ArucoDetector`` with OpenCV's default parameters, every frame;
+- :mod:`.tracking`: the same detector, run on the whole frame only when it must be and on the
+  regions around known tags in between;
+- :mod:`.factory`: :func:`~.factory.make_detector`, a detector by name.
 """
-
-from __future__ import annotations
-
-from zenoh_perception.detect.refine import (
-    FitResult,
-    MarkerModel,
-    acceptance_threshold,
-    fit_marker,
-    refine_corners,
-)
-
-__all__ = [
-    "FitResult",
-    "MarkerModel",
-    "acceptance_threshold",
-    "fit_marker",
-    "refine_corners",
-]

@@ -1,0 +1,67 @@
+"""The transport floor: a bare Zenoh peer that does what the service must do with a frame and
+nothing else. It copies each frame out of Zenoh and answers it at once on the tag key with a
+no-tag ``StarterProjectTag`` and on the record key with an empty record of the same ``seq``.
+
+The bench times it in lockstep beside the services, on the same camera and frames: a service's
+own cost is its end-to-end time minus this one's. Run as
+``python -m zenoh_perception.bench.floor -l ENDPOINT -e ENDPOINT --input-key K --tag-key K
+--record-key K`` (other service flags are accepted and ignored); it runs until SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from typing import Any
+
+import msgpack
+import zenoh
+
+from zenoh_perception.bench._loopback import loopback_config
+from zenoh_perception.records import TagCodec
+from zenoh_perception.selection import NO_TAG
+
+#: The record's timing fields, all zero: the floor does none of that work.
+_TIMING = dict.fromkeys(("latency_ms", "queue_ms", "decode_ms", "convert_ms", "detect_ms"), 0.0)
+
+
+def _seq(sample: zenoh.Sample) -> int:
+    attachment = sample.attachment
+    if attachment is None:
+        return -1
+    meta: Any = msgpack.unpackb(attachment.to_bytes(), raw=False)
+    return int(meta.get("seq", -1)) if isinstance(meta, dict) else -1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m zenoh_perception.bench.floor")
+    parser.add_argument("-l", "--listen", action="append", default=[])
+    parser.add_argument("-e", "--connect", action="append", default=[])
+    parser.add_argument("--input-key", required=True)
+    parser.add_argument("--tag-key", required=True)
+    parser.add_argument("--record-key", required=True)
+    args, _ignored = parser.parse_known_args(argv)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    tag = bytes(TagCodec().encode(NO_TAG))
+    with zenoh.open(loopback_config(listen=args.listen, connect=args.connect)) as session:
+        tags = session.declare_publisher(args.tag_key)
+        records = session.declare_publisher(args.record_key)
+
+        def answer(sample: zenoh.Sample) -> None:
+            sample.payload.to_bytes()  # the one copy out of Zenoh the service makes too
+            record = {"seq": _seq(sample), "tags": [], "timing": _TIMING}
+            tags.put(tag)
+            records.put(msgpack.packb(record))
+
+        # declared last: the bench waits for this subscriber to match before it starts
+        session.declare_subscriber(args.input_key, answer)
+        stop.wait()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

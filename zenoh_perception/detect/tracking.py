@@ -1,0 +1,281 @@
+"""OpenCV's ArUco detector, run on the whole frame only when it must be.
+
+Every marker this detector reports was decided by ``cv2.aruco.ArucoDetector`` with OpenCV's
+default parameters, on the whole frame (a *scan*) or on a region of it around a marker that a
+previous frame showed (*following*). What it adds is the choice of where to look:
+
+- A scan runs on the first frame; on a scene cut (the frame no longer looks like the previous
+  one: its thumbnail, one pixel per 16 x 16 block, differs by more than ``scene_cut_level``
+  grey levels on average); when one block away from the known markers changed by more than
+  ``appear_level`` (something appeared there); whenever a followed marker is not found again
+  where it was expected (it moved farther than its region, was hidden or left); when no known
+  marker is in view; and at least every ``full_scan_period`` frames, so a marker that enters
+  a followed scene unnoticed is reported within that many frames.
+- Between scans each known marker is searched for in a region around the place its last two
+  sightings predict (constant velocity), with a margin of half its side plus its motion;
+  regions that overlap are merged and each is read once. Any marker the detector decides on
+  in a region is reported, known or new.
+- The quads a scan saw but OpenCV could not read (its rejected candidates: a marker too
+  small, blurred or dim to read yet) are searched in their regions too until the next scan,
+  up to ``candidate_regions`` of them, smallest first: a far marker is reported on the first
+  frame it can be read, not at the next scan.
+- A marker that neither its region nor the scan that followed found is still searched for
+  in its region for ``coast_frames`` frames: a small or blurred marker that OpenCV reads on
+  some frames and not on others is read again as soon as it can be, not at the next scan.
+- With no marker known, a frame that looks like the previous one (a still scene: the
+  thumbnail differs by less than ``still_level`` on average) is not read again until the
+  period is over.
+
+Independent frames are therefore each scanned (every one is a scene cut), and on video the
+detector reads whole frames about once per period. One instance per stream; not thread-safe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.errors import SettingsError
+
+Gray = npt.NDArray[np.uint8]
+
+#: Side of the blocks of the thumbnail that tells scene cuts, appearances and still scenes.
+BLOCK: Final = 16
+#: Smallest margin of a followed marker's region, pixels (OpenCV needs a quiet zone to read).
+MIN_MARGIN_PX: Final = 20.0
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingConfig:
+    """How often whole frames are scanned, and what counts as a scene cut or a still scene."""
+
+    full_scan_period: int = 4
+    coast_frames: int = 8
+    candidate_regions: int = 24
+    scene_cut_level: float = 12.0
+    appear_level: float = 48.0
+    still_level: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.full_scan_period <= 1000:
+            msg = f"full_scan_period must be 1..1000, not {self.full_scan_period}"
+            raise SettingsError(msg)
+        for name in ("coast_frames", "candidate_regions"):
+            if not 0 <= getattr(self, name) <= 1000:
+                msg = f"{name} must be 0..1000, not {getattr(self, name)}"
+                raise SettingsError(msg)
+        for name in ("scene_cut_level", "appear_level", "still_level"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 255.0:
+                msg = f"{name} must be 0..255, not {value}"
+                raise SettingsError(msg)
+
+
+@dataclass(slots=True)
+class _Track:
+    tag_id: int
+    corners: npt.NDArray[np.float32]
+    motion: npt.NDArray[np.float32] = field(default_factory=lambda: np.zeros(2, dtype=np.float32))
+    missed: int = 0  # frames since it was last found (its corners are where it was then)
+
+    def predicted(self) -> npt.NDArray[np.float32]:
+        """Where constant motion puts its corners on the frame being read."""
+        return self.corners + self.motion * (self.missed + 1)
+
+    def coasting(self) -> _Track:
+        """The track of a frame on which it was not found."""
+        return _Track(self.tag_id, self.corners, self.motion, self.missed + 1)
+
+    def region(self, width: int, height: int) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1), end exclusive, inside the frame, around both where it was last
+        seen and where constant motion puts it now (a coasting marker may have stopped)."""
+        quads = np.concatenate((self.corners, self.predicted()))
+        low = quads.min(axis=0)
+        high = quads.max(axis=0)
+        side = float((self.corners.max(axis=0) - self.corners.min(axis=0)).max())
+        margin = max(MIN_MARGIN_PX, 0.5 * side) + float(np.abs(self.motion).max())
+        x0 = max(0, int(low[0] - margin))
+        y0 = max(0, int(low[1] - margin))
+        x1 = min(width, int(high[0] + margin) + 2)
+        y1 = min(height, int(high[1] + margin) + 2)
+        return x0, y0, x1, y1
+
+
+def _merge(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
+    """Rectangles merged until none overlaps another (each pixel is read once)."""
+    merged = list(rects)
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(merged)):
+            for j in range(i + 1, len(merged)):
+                a, b = merged[i], merged[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                    del merged[j]
+                    changed = True
+                    break
+            if changed:
+                break
+    return merged
+
+
+def _centre(corners: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    out: npt.NDArray[np.float32] = corners.mean(axis=0)
+    return out
+
+
+class TrackingDetector:
+    """OpenCV's ArUco detector on whole frames when needed, on regions around known markers
+    in between (see the module documentation)."""
+
+    def __init__(
+        self, dictionary: str = "DICT_4X4_50", config: TrackingConfig | None = None
+    ) -> None:
+        self.config = config if config is not None else TrackingConfig()
+        self._opencv = OpenCvDetector(dictionary)
+        self._tracks: list[_Track] = []
+        self._candidates: list[_Track] = []
+        self._thumb: npt.NDArray[np.int16] | None = None
+        self._since_scan = 0
+        self.counters: dict[str, int] = {
+            "frames": 0,
+            "scans": 0,
+            "scene_cuts": 0,
+            "appearances": 0,
+            "lost_rescans": 0,
+            "followed": 0,
+            "regions": 0,
+            "still_skips": 0,
+        }
+
+    def detect(self, gray: Gray) -> list[Detection]:
+        self.counters["frames"] += 1
+        change = self._change(gray)
+        self._since_scan += 1
+        if change is None:
+            return self._scan(gray)
+        if float(change.mean()) > self.config.scene_cut_level:
+            self.counters["scene_cuts"] += 1
+            return self._scan(gray)
+        if self._since_scan >= self.config.full_scan_period:
+            return self._scan(gray)
+        if not any(t.missed == 0 for t in self._tracks):
+            if not self._tracks and float(change.mean()) < self.config.still_level:
+                self.counters["still_skips"] += 1
+                return []
+            return self._scan(gray)
+        if self._appeared(change, gray.shape[1], gray.shape[0]):
+            self.counters["appearances"] += 1
+            return self._scan(gray)
+        found = self._follow(gray)
+        if found is None:
+            self.counters["lost_rescans"] += 1
+            return self._scan(gray)
+        self.counters["followed"] += 1
+        return found
+
+    def reset(self) -> None:
+        """Forget the stream: the next frame is scanned."""
+        self._tracks = []
+        self._candidates = []
+        self._thumb = None
+        self._since_scan = 0
+
+    def _change(self, gray: Gray) -> npt.NDArray[np.int16] | None:
+        """Absolute change of each block's mean grey level since the previous frame (None:
+        no previous frame of this size)."""
+        height, width = gray.shape[:2]
+        size = (max(1, width // BLOCK), max(1, height // BLOCK))
+        thumb = cv2.resize(gray, size, interpolation=cv2.INTER_AREA).astype(np.int16)
+        previous, self._thumb = self._thumb, thumb
+        if previous is None or previous.shape != thumb.shape:
+            self._tracks, self._candidates = [], []
+            return None
+        change: npt.NDArray[np.int16] = np.abs(thumb - previous)
+        return change
+
+    def _appeared(self, change: npt.NDArray[np.int16], width: int, height: int) -> bool:
+        """Whether a block away from every known marker changed by more than appear_level."""
+        changed = change > self.config.appear_level
+        if not changed.any():
+            return False
+        for track in self._tracks:
+            x0, y0, x1, y1 = track.region(width, height)
+            changed[y0 // BLOCK : -(-y1 // BLOCK), x0 // BLOCK : -(-x1 // BLOCK)] = False
+        return bool(changed.any())
+
+    def _scan(self, gray: Gray) -> list[Detection]:
+        self.counters["scans"] += 1
+        self._since_scan = 0
+        found, rejected = self._opencv.detect_with_rejected(gray)
+        sides = [float(np.ptp(quad, axis=0).max()) for quad in rejected]
+        smallest = sorted(range(len(rejected)), key=sides.__getitem__)
+        self._candidates = [
+            _Track(-1, rejected[i]) for i in smallest[: self.config.candidate_regions]
+        ]
+        unmatched = list(found)
+        coasting: list[_Track] = []
+        for track in self._tracks:
+            match = _nearest(track, unmatched)
+            if match is not None:
+                unmatched = [d for d in unmatched if d is not match]
+            elif track.missed < self.config.coast_frames:
+                coasting.append(track.coasting())
+        self._tracks = [_Track(d.tag_id, d.corners) for d in found] + coasting
+        return found
+
+    def _follow(self, gray: Gray) -> list[Detection] | None:
+        """Markers in the regions around the known ones; None when one that the previous
+        frame showed is missing."""
+        height, width = gray.shape[:2]
+        regions = _merge([t.region(width, height) for t in self._tracks + self._candidates])
+        self.counters["regions"] += len(regions)
+        found: list[Detection] = []
+        for x0, y0, x1, y1 in regions:
+            found += self._opencv.detect_region(gray[y0:y1, x0:x1], (x0, y0))
+        tracks: list[_Track] = []
+        unmatched = list(found)
+        for track in self._tracks:
+            match = _nearest(track, unmatched)
+            if match is not None:
+                unmatched = [d for d in unmatched if d is not match]
+                moved = _centre(match.corners) - _centre(track.corners)
+                motion = moved / np.float32(track.missed + 1)
+                tracks.append(_Track(match.tag_id, match.corners, motion))
+            elif track.missed == 0:
+                return None
+            elif track.missed < self.config.coast_frames:
+                tracks.append(track.coasting())
+        tracks += [_Track(d.tag_id, d.corners) for d in unmatched]
+        self._tracks = tracks
+        return found
+
+
+def _nearest(track: _Track, candidates: list[Detection]) -> Detection | None:
+    """The candidate with the track's id nearest its predicted centre, if within reach."""
+    expected = _centre(track.predicted())
+    reach = (
+        max(float(np.ptp(track.corners, axis=0).max()), 2.0 * MIN_MARGIN_PX)
+        + float(np.abs(track.motion).max()) * track.missed
+    )
+    best: Detection | None = None
+    best_distance = reach
+    for candidate in candidates:
+        if candidate.tag_id != track.tag_id:
+            continue
+        distance = float(np.linalg.norm(_centre(candidate.corners) - expected))
+        if distance <= best_distance:
+            best, best_distance = candidate, distance
+    return best
+
+
+def tracking_counters(detector: Any) -> dict[str, int]:
+    """The counters of a :class:`TrackingDetector` (empty for any other detector)."""
+    return dict(detector.counters) if isinstance(detector, TrackingDetector) else {}

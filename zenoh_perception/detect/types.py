@@ -1,0 +1,77 @@
+"""What every detector returns and accepts, and the names settings may use. Imports no OpenCV."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.errors import SettingsError
+
+#: OpenCV's predefined ArUco and AprilTag dictionaries (``cv2.aruco.DICT_*``).
+DICTIONARIES: Final = (
+    "DICT_4X4_50",
+    "DICT_4X4_100",
+    "DICT_4X4_250",
+    "DICT_4X4_1000",
+    "DICT_5X5_50",
+    "DICT_5X5_100",
+    "DICT_5X5_250",
+    "DICT_5X5_1000",
+    "DICT_6X6_50",
+    "DICT_6X6_100",
+    "DICT_6X6_250",
+    "DICT_6X6_1000",
+    "DICT_7X7_50",
+    "DICT_7X7_100",
+    "DICT_7X7_250",
+    "DICT_7X7_1000",
+    "DICT_ARUCO_ORIGINAL",
+    "DICT_APRILTAG_16h5",
+    "DICT_APRILTAG_25h9",
+    "DICT_APRILTAG_36h10",
+    "DICT_APRILTAG_36h11",
+    "DICT_ARUCO_MIP_36h12",
+)
+
+#: ``tracking``: OpenCV's detector on whole frames when needed, on regions around known tags
+#: in between; ``opencv``: OpenCV's detector on every whole frame.
+DETECTORS: Final = ("tracking", "opencv")
+
+
+def dictionary_name(name: str) -> str:
+    """The canonical spelling of dictionary ``name`` (case-insensitive).
+
+    Raises:
+        SettingsError: ``name`` is not one of :data:`DICTIONARIES`.
+
+    """
+    for known in DICTIONARIES:
+        if known.upper() == name.upper():
+            return known
+    msg = f"unknown ArUco dictionary {name!r}; choose one of {', '.join(DICTIONARIES)}"
+    raise SettingsError(msg)
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """One decoded marker: id and its four corners (float32, shape (4, 2)).
+
+    Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the marker.
+    """
+
+    tag_id: int
+    corners: npt.NDArray[np.float32]
+
+
+class Detector(Protocol):
+    """Anything that finds markers in a grey (single-channel uint8) image.
+
+    A detector may keep state between calls (a stream's previous frames): use one per stream.
+    """
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        """Return every marker found in ``gray``."""
+        ...
