@@ -28,10 +28,16 @@ Main entry points
 - `SceneGenerator(camera, dictionary=..., seed=..., effects=Effects.realistic())` with
   `.random_scene(...)`, `.scene_from_poses(...)` and `.drive(...)`, each giving `Scene` objects
   (BGRA image + `MarkerTruth` / `DistractorTruth` tuples).
+- `Effects.clean()`, `.realistic()`, `.harsh()` and `.real_camera()`; the last adds what real
+  cameras do (`CameraEffects`: coloured light, exposure, shadows, glare, paper grain, greyscale
+  sensors, rolling shutter, JPEG). `random_scene(side_px=(min, max))` asks for tag sizes in
+  pixels. With a rolling shutter, truth corners and centres are where the sheared image shows
+  them and the pose is the one of the middle row.
 """
 
 from __future__ import annotations
 
+from zenoh_perception.scene._camera_effects import CAST_KINDS, CameraEffects, CameraParams
 from zenoh_perception.scene._distractors import (
     CODE_DISTRACTOR_KINDS,
     DISTRACTOR_KINDS,
@@ -56,11 +62,14 @@ from zenoh_perception.scene._raster import render_markers
 
 __all__ = [
     "BACKGROUND_KINDS",
+    "CAST_KINDS",
     "CODE_DISTRACTOR_KINDS",
     "DEFAULT_HFOV_DEG",
     "DISTRACTOR_KINDS",
     "RESOLUTIONS",
+    "CameraEffects",
     "CameraModel",
+    "CameraParams",
     "DistractorPose",
     "DistractorTruth",
     "EffectParams",

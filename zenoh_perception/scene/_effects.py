@@ -1,20 +1,23 @@
 """Backgrounds, clutter and image-level effects (lighting, contrast, blur, motion blur, noise).
 
 Everything works on BGR uint8 images with OpenCV primitives (the generator must stay fast at
-HD2K) and draws all randomness from the caller's numpy Generator.
+HD2K) and draws all randomness from the caller's numpy Generator. What real cameras add on top
+(colour casts, tone, shadows, glare, greyscale sensors, rolling shutter, JPEG) is described by
+`Effects.camera` and lives in `_camera_effects`.
 """
 
 from __future__ import annotations
 
 import math
 import string
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from statistics import NormalDist
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.scene._camera_effects import CameraEffects, CameraParams
 from zenoh_perception.scene._errors import SceneError
 from zenoh_perception.scene._raster import u8
 
@@ -52,6 +55,7 @@ class EffectParams:
     lighting_angle_deg: float = 0.0
     brightness: float = 0.0
     contrast: float = 1.0
+    camera: CameraParams = field(default_factory=CameraParams)
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,7 @@ class Effects:
     - lighting_gradient: depth g of a multiplicative linear gradient, gain from 1 to 1 - g.
     - brightness: additive offset (gray levels). contrast: gain about mid-gray 128.
     - marker_black / marker_white: ink levels of printed markers (per marker).
+    - camera: what real cameras add (`CameraEffects`; off unless asked for).
     """
 
     backgrounds: tuple[str, ...] = ("plain",)
@@ -78,6 +83,7 @@ class Effects:
     contrast: tuple[float, float] = (1.0, 1.0)
     marker_black: tuple[int, int] = (0, 0)
     marker_white: tuple[int, int] = (255, 255)
+    camera: CameraEffects = field(default_factory=CameraEffects)
 
     def __post_init__(self) -> None:
         if not self.backgrounds or any(b not in BACKGROUND_KINDS for b in self.backgrounds):
@@ -134,6 +140,25 @@ class Effects:
             marker_white=(150, 230),
         )
 
+    @classmethod
+    def real_camera(cls) -> Effects:
+        """What real cameras do, each at a random strength per scene: coloured light and white
+        balance errors, under- and over-exposure, shadows and glare across tags, paper grain,
+        greyscale (IR) frames, rolling shutter, strong blur and JPEG (quality 40-95, 4:2:0)."""
+        return cls(
+            backgrounds=BACKGROUND_KINDS,
+            clutter=(4, 20),
+            blur_sigma=(0.0, 2.0),
+            motion_blur_px=(0.0, 12.0),
+            noise_sigma=(1.0, 8.0),
+            lighting_gradient=(0.0, 0.5),
+            brightness=(-15.0, 15.0),
+            contrast=(0.7, 1.1),
+            marker_black=(5, 60),
+            marker_white=(170, 250),
+            camera=CameraEffects.real_camera(),
+        )
+
     def sample(self, rng: np.random.Generator) -> EffectParams:
         """Draw one set of effect values."""
 
@@ -152,6 +177,8 @@ class Effects:
             lighting_angle_deg=float(rng.uniform(0.0, 360.0)),
             brightness=pick(self.brightness),
             contrast=pick(self.contrast),
+            # drawn last and only when asked for, so the other presets draw as before
+            camera=self.camera.sample(rng) if self.camera.enabled else CameraParams(),
         )
 
     def ink(self, rng: np.random.Generator) -> tuple[int, int]:
@@ -162,7 +189,9 @@ class Effects:
 
     def describe(self) -> dict[str, object]:
         """Plain mapping of the ranges (for reports)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        out: dict[str, object] = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["camera"] = self.camera.describe()
+        return out
 
 
 # --------------------------------------------------------------------------- backgrounds

@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.scene._camera_effects import (
+    Light,
+    camera_output,
+    light_scene,
+    plan_tag_light,
+    rolling_shutter,
+    shear_points,
+)
 from zenoh_perception.scene._distractors import (
     CODE_DISTRACTOR_KINDS,
     check_kinds,
@@ -116,6 +125,10 @@ class DistractorTruth:
         return float(sides.mean())
 
 
+# Truth of either kind (what `SceneGenerator._sheared` maps to itself).
+_Truth = TypeVar("_Truth", MarkerTruth, DistractorTruth)
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     """One synthetic frame: BGRA uint8 (H, W, 4) C-contiguous image plus exact truth."""
@@ -173,6 +186,7 @@ class _Placement:
     distance_m: tuple[float, float]
     max_tilt_deg: float
     max_roll_deg: float
+    side_px: tuple[float, float] | None = None
 
 
 @dataclass
@@ -259,11 +273,15 @@ class SceneGenerator:
         max_roll_deg: float = 180.0,
         partial_fraction: float = 0.0,
         distractor_kinds: Sequence[str] = CODE_DISTRACTOR_KINDS,
+        side_px: tuple[float, float] | None = None,
     ) -> Scene:
         """An independent frame with up to `n_markers` tags and `n_distractors` look-alikes.
 
         Distances are drawn log-uniform in `distance_m`, sizes uniform in `size_m` (before
-        rejecting poses that do not fit, which thins out the largest near ones); each object is
+        rejecting poses that do not fit, which thins out the largest near ones). With
+        `side_px` (min, max) the side of each object's square in pixels is drawn log-uniform
+        there instead (within a few percent; tilt changes the shape, not the mean side) and its
+        distance follows from its size, so `distance_m` is not used. Each object is
         tilted away from the line of sight by up to `max_tilt_deg` (random axis) and turned in
         plane by up to +-`max_roll_deg`. Objects never overlap (quiet zones and plates
         included). Tags are fully inside the frame, except a `partial_fraction` of them that
@@ -278,6 +296,8 @@ class SceneGenerator:
             raise SceneError(f"partial_fraction must be in [0, 1], got {partial_fraction}")
         if not (0.0 <= max_tilt_deg <= 85.0 and 0.0 <= max_roll_deg <= 180.0):
             raise SceneError("need 0 <= max_tilt_deg <= 85 and 0 <= max_roll_deg <= 180")
+        if side_px is not None and not (0.0 < side_px[0] <= side_px[1]):
+            raise SceneError(f"side_px must be (min, max) with 0 < min <= max, got {side_px}")
         chosen = self._choose_ids(n_markers, ids)
         rng = self._rng
         params = self.effects.sample(rng)
@@ -288,7 +308,7 @@ class SceneGenerator:
         rng.shuffle(order)
         items: list[_Item] = []
         placed: list[npt.NDArray[np.float64]] = []
-        spec = _Placement(size_m, distance_m, max_tilt_deg, max_roll_deg)
+        spec = _Placement(size_m, distance_m, max_tilt_deg, max_roll_deg, side_px)
         for what, i in order:
             if what == "m":
                 partial = bool(rng.random() < partial_fraction)
@@ -448,7 +468,12 @@ class SceneGenerator:
         if kind is not None and kind != "decoy":
             mimic = int(rng.integers(self._n_ids))
         for _ in range(_PLACEMENT_ATTEMPTS):
-            dist = math.exp(float(rng.uniform(log_lo, log_hi)))
+            # with side_px, the first draw is the side in pixels instead of the distance
+            if spec.side_px is None:
+                dist = math.exp(float(rng.uniform(log_lo, log_hi)))
+            else:
+                lo_px, hi_px = spec.side_px
+                side = math.exp(float(rng.uniform(math.log(lo_px), math.log(hi_px))))
             size = float(rng.uniform(spec.size_m[0], spec.size_m[1]))
             pixel = (rng.uniform(0, cam.width - 1), rng.uniform(0, cam.height - 1))
             direction = cam.ray(pixel)
@@ -457,6 +482,8 @@ class SceneGenerator:
             axis = np.array([math.cos(axis_angle), math.sin(axis_angle), 0.0]) * tilt
             roll = float(rng.uniform(-spec.max_roll_deg, spec.max_roll_deg))
             rotation = facing_rotation(direction) @ rodrigues(axis) @ rot_z(roll)
+            if spec.side_px is not None:
+                dist = self._distance_for_side(size, side, direction, rotation)
             position = direction * dist
             pos = (float(position[0]), float(position[1]), float(position[2]))
             rvec = rvec_of(rotation)
@@ -480,6 +507,24 @@ class SceneGenerator:
             return item
         return None
 
+    def _distance_for_side(
+        self,
+        size: float,
+        side: float,
+        direction: npt.NDArray[np.float64],
+        rotation: npt.NDArray[np.float64],
+    ) -> float:
+        """Distance along `direction` at which a square of `size` metres turned by `rotation`
+        has a mean side of about `side` pixels: the pinhole estimate, corrected once by the
+        side it projects to there (the projected side scales with the inverse distance)."""
+        guess = self.camera.fx * size / side
+        square = square_corners(size) @ rotation.T + direction * guess
+        if not in_front(square):
+            return guess
+        quad = self.camera.project(square)
+        measured = float(np.linalg.norm(np.roll(quad, -1, axis=0) - quad, axis=1).mean())
+        return guess * measured / side
+
     def _finish(
         self,
         canvas: npt.NDArray[np.uint8],
@@ -495,16 +540,29 @@ class SceneGenerator:
         items = sorted(items, key=lambda it: -it.depth)
         markers: list[MarkerTruth] = []
         distractors: list[DistractorTruth] = []
+        camera = params.camera
+        lights: list[Light] = []
         for n, item in enumerate(items):
             occluded = occlusion and any(
                 _quad_overlap(item.footprint, nearer.footprint) for nearer in items[n + 1 :]
             )
             art_rng = rng if item.seed is None else np.random.default_rng(item.seed)
             if item.marker is not None:
-                markers.append(self._draw_marker(canvas, item.marker, art_rng, occluded))
+                truth = self._draw_marker(canvas, item.marker, art_rng, occluded)
+                markers.append(truth)
+                if camera.enabled:
+                    lights += plan_tag_light(camera, truth.corners, item.footprint, art_rng)
             elif item.distractor is not None:
                 distractors.append(self._draw_distractor(canvas, item, art_rng))
-        image = to_bgra(apply_effects(canvas, params, rng))
+        if camera.enabled:
+            canvas = light_scene(canvas, camera, lights, rng)
+            canvas = rolling_shutter(canvas, camera.rolling_shutter_px)
+            markers = [self._sheared(m, camera.rolling_shutter_px) for m in markers]
+            distractors = [self._sheared(d, camera.rolling_shutter_px) for d in distractors]
+        effected = apply_effects(canvas, params, rng)
+        if camera.enabled:
+            effected = camera_output(effected, camera)
+        image = to_bgra(effected)
         markers.sort(key=lambda m: m.tag_id)
         return Scene(
             image=image,
@@ -515,6 +573,20 @@ class SceneGenerator:
             dictionary=self.dictionary,
             index=index,
             time_s=time_s,
+        )
+
+    def _sheared(self, truth: _Truth, shift_px: float) -> _Truth:
+        """`truth` with corners and centre where the rolling shutter moved them (the pose is
+        the one at the middle row's readout)."""
+        if abs(shift_px) < 1e-3:
+            return truth
+        corners = shear_points(truth.corners, shift_px, self.camera.height)
+        centre = shear_points(truth.centre, shift_px, self.camera.height)[0]
+        return replace(
+            truth,
+            corners=_frozen(corners),
+            centre=_frozen(centre),
+            visible=self.camera.contains(corners),
         )
 
     def _draw_marker(
