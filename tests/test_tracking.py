@@ -10,7 +10,8 @@ import pytest
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.tracking import TrackingConfig, TrackingDetector, _merge
+from zenoh_perception.detect.regions import merge
+from zenoh_perception.detect.tracking import TrackingConfig, TrackingDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator, render_markers
@@ -148,7 +149,7 @@ def test_video_finds_at_least_what_opencv_finds_every_frame() -> None:
 
 def test_merge_leaves_no_overlap() -> None:
     rects = [(0, 0, 10, 10), (5, 5, 20, 20), (30, 30, 40, 40), (19, 0, 31, 3)]
-    merged = _merge(rects)
+    merged = merge(rects)
     for i, a in enumerate(merged):
         for b in merged[i + 1 :]:
             assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])

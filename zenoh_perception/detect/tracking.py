@@ -40,6 +40,8 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.pyramid import PyramidScan
+from zenoh_perception.detect.regions import Rect, around, merge, side
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 
@@ -61,6 +63,7 @@ class TrackingConfig:
     scene_cut_level: float = 12.0
     appear_level: float = 48.0
     still_level: float = 0.5
+    pyramid: bool = False  # scans by :class:`~.pyramid.PyramidScan` instead of OpenCV's default
 
     def __post_init__(self) -> None:
         if not 1 <= self.full_scan_period <= 1000:
@@ -92,38 +95,12 @@ class _Track:
         """The track of a frame on which it was not found."""
         return _Track(self.tag_id, self.corners, self.motion, self.missed + 1)
 
-    def region(self, width: int, height: int) -> tuple[int, int, int, int]:
-        """(x0, y0, x1, y1), end exclusive, inside the frame, around both where it was last
-        seen and where constant motion puts it now (a coasting marker may have stopped)."""
-        quads = np.concatenate((self.corners, self.predicted()))
-        low = quads.min(axis=0)
-        high = quads.max(axis=0)
-        side = float((self.corners.max(axis=0) - self.corners.min(axis=0)).max())
-        margin = max(MIN_MARGIN_PX, 0.5 * side) + float(np.abs(self.motion).max())
-        x0 = max(0, int(low[0] - margin))
-        y0 = max(0, int(low[1] - margin))
-        x1 = min(width, int(high[0] + margin) + 2)
-        y1 = min(height, int(high[1] + margin) + 2)
-        return x0, y0, x1, y1
-
-
-def _merge(rects: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
-    """Rectangles merged until none overlaps another (each pixel is read once)."""
-    merged = list(rects)
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(merged)):
-            for j in range(i + 1, len(merged)):
-                a, b = merged[i], merged[j]
-                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
-                    merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-                    del merged[j]
-                    changed = True
-                    break
-            if changed:
-                break
-    return merged
+    def region(self, width: int, height: int) -> Rect:
+        """Around both where it was last seen and where constant motion puts it now (a
+        coasting marker may have stopped), inside the frame."""
+        points = np.concatenate((self.corners, self.predicted()))
+        margin = max(MIN_MARGIN_PX, 0.5 * side(self.corners)) + float(np.abs(self.motion).max())
+        return around(points, margin, width, height)
 
 
 def _centre(corners: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
@@ -140,6 +117,7 @@ class TrackingDetector:
     ) -> None:
         self.config = config if config is not None else TrackingConfig()
         self._opencv = OpenCvDetector(dictionary)
+        self._scanner = PyramidScan(dictionary) if self.config.pyramid else self._opencv
         self._tracks: list[_Track] = []
         self._candidates: list[_Track] = []
         self._thumb: npt.NDArray[np.int16] | None = None
@@ -214,8 +192,8 @@ class TrackingDetector:
     def _scan(self, gray: Gray) -> list[Detection]:
         self.counters["scans"] += 1
         self._since_scan = 0
-        found, rejected = self._opencv.detect_with_rejected(gray)
-        sides = [float(np.ptp(quad, axis=0).max()) for quad in rejected]
+        found, rejected = self._scanner.detect_with_rejected(gray)
+        sides = [side(quad) for quad in rejected]
         smallest = sorted(range(len(rejected)), key=sides.__getitem__)
         self._candidates = [
             _Track(-1, rejected[i]) for i in smallest[: self.config.candidate_regions]
@@ -235,7 +213,7 @@ class TrackingDetector:
         """Markers in the regions around the known ones; None when one that the previous
         frame showed is missing."""
         height, width = gray.shape[:2]
-        regions = _merge([t.region(width, height) for t in self._tracks + self._candidates])
+        regions = merge([t.region(width, height) for t in self._tracks + self._candidates])
         self.counters["regions"] += len(regions)
         found: list[Detection] = []
         for x0, y0, x1, y1 in regions:
