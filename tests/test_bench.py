@@ -69,7 +69,13 @@ def report_no_shm(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
 
 def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, Any]) -> None:
     quick = Plan.quick()
-    assert set(report["sets"]) == {*RESOLUTIONS, "video", "distractors"}
+    assert set(report["sets"]) == {
+        *RESOLUTIONS,
+        "video",
+        "distractors",
+        "real-camera",
+        "real-camera video",
+    }
     for name, entry in report["sets"].items():
         for who in ("baseline", "tracking"):
             summary = entry[who]
@@ -82,7 +88,7 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, 
         counters = entry["tracking_counters"]
         assert counters["frames"] == entry["tracking"]["frames"]
         assert 1 <= counters["scans"] <= counters["frames"]
-        if name != "video":  # independent frames: every one is scanned
+        if not entry["video"]:  # independent frames: every one is scanned
             assert counters["scans"] == counters["frames"]
     # on the video, whole frames are read only now and then
     video = report["sets"]["video"]["tracking_counters"]
@@ -95,9 +101,10 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(report: dict[str, 
 
 def test_end_to_end_and_throughput_ran_through_service_processes(report: dict[str, Any]) -> None:
     e2e = report["e2e"]
-    assert set(e2e) == {"HD720", "video"}
+    assert set(e2e) == {"HD720", "video", "real-camera video"}
     # both sets go through several passes (fresh services each), pooled
-    assert e2e["HD720"]["passes"] == e2e["video"]["passes"] == Plan.quick().e2e_passes > 1
+    assert {entry["passes"] for entry in e2e.values()} == {Plan.quick().e2e_passes}
+    assert Plan.quick().e2e_passes > 1
     for name, entry in e2e.items():
         assert set(entry) == {
             *E2E_DETECTORS,
@@ -143,7 +150,7 @@ def test_end_to_end_and_throughput_ran_through_service_processes(report: dict[st
         assert run["camera"]["shm"] is setup["shm"]
     text = format_report(report)
     assert "overhead med" in text
-    for name in ("HD720", "video"):
+    for name in e2e:
         assert f"{name} x{e2e[name]['passes']}" in text
         each = ", ".join(f"{r:.2f}" for r in e2e[name]["pass_ratios"]["tracking"])
         assert f"tracking {each}" in text
@@ -166,7 +173,7 @@ def test_no_shm_puts_plain_bytes_and_says_so(report_no_shm: dict[str, Any]) -> N
     # one pass: no per-pass figures to pool or list
     assert report_no_shm["plan"]["e2e_passes"] == 1
     notes = [g["note"] for g in report_no_shm["goals"] if "e2e - floor" in g["goal"]]
-    assert len(notes) == 2  # the video's and the independent frames'
+    assert len(notes) == 3  # the two videos' and the independent frames'
     assert all(n.endswith("; one pass") for n in notes)
     assert "per pass" not in format_report(report_no_shm)
 
