@@ -10,7 +10,7 @@ import pytest
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.regions import merge
+from zenoh_perception.detect.regions import same_marker
 from zenoh_perception.detect.tracking import TrackingConfig, TrackingDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
@@ -147,15 +147,22 @@ def test_video_finds_at_least_what_opencv_finds_every_frame() -> None:
     assert tracking.counters["scans"] < tracking.counters["frames"]
 
 
-def test_merge_leaves_no_overlap() -> None:
-    rects = [(0, 0, 10, 10), (5, 5, 20, 20), (30, 30, 40, 40), (19, 0, 31, 3)]
-    merged = merge(rects)
-    for i, a in enumerate(merged):
-        for b in merged[i + 1 :]:
-            assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
-    covered = {(x, y) for r in rects for x in range(r[0], r[2]) for y in range(r[1], r[3])}
-    inside = {(x, y) for r in merged for x in range(r[0], r[2]) for y in range(r[1], r[3])}
-    assert covered <= inside
+def test_same_marker_needs_the_same_id_and_nearby_centres() -> None:
+    quad = square(100, 100, 40).astype(np.float32)
+    assert same_marker(Detection(3, quad), Detection(3, quad + 5))
+    assert not same_marker(Detection(3, quad), Detection(4, quad))
+    assert not same_marker(Detection(3, quad), Detection(3, quad + 30))
+
+
+def test_a_large_marker_is_followed_in_a_region_read_at_a_smaller_scale() -> None:
+    frame = gray(render_markers(W, H, [(8, square(150, 80, 300))]))
+    tracking = TrackingDetector("DICT_4X4_50", TrackingConfig(full_scan_period=100))
+    scanned = tracking.detect(frame)
+    followed = tracking.detect(frame)
+    assert tracking.counters["followed"] == 1
+    assert [d.tag_id for d in followed] == [8]
+    # read at a quarter of its size, corners refined at full resolution
+    np.testing.assert_allclose(followed[0].corners, scanned[0].corners, atol=1.0)
 
 
 @pytest.mark.parametrize(

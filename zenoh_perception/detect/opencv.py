@@ -3,6 +3,8 @@ detector of this package is held to."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import cv2
@@ -20,6 +22,23 @@ def aruco_dictionary(name: str) -> Any:
 
     """
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary_name(name)))
+
+
+#: cv2.cornerSubPix's stop: 10 iterations or a move under 0.05 px.
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.05)
+
+
+@contextmanager
+def single_threaded() -> Iterator[None]:
+    """OpenCV on one thread meanwhile. For small images (regions, thumbnails) waking OpenCV's
+    thread pool costs more than the work it shares, and far more on a busy machine. The
+    setting is process-wide: detectors are used from one thread at a time."""
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 def detections_from_opencv(
@@ -44,15 +63,35 @@ class OpenCvDetector:
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
-        return self.detect_region(gray, (0, 0))
+        corners, ids, _rejected = self._detector.detectMarkers(gray)
+        return detections_from_opencv(corners, ids)
 
     def detect_region(
-        self, image: npt.NDArray[np.uint8], offset: tuple[int, int]
+        self, image: npt.NDArray[np.uint8], offset: tuple[int, int], scale: int = 1
     ) -> list[Detection]:
         """Markers in ``image``, a region of a larger frame whose top-left pixel is ``offset``
-        (x, y) there, in that frame's coordinates. ``image`` may be grey or BGR."""
-        corners, ids, _rejected = self._detector.detectMarkers(image)
-        return detections_from_opencv(corners, ids, offset)
+        (x, y) there, in that frame's coordinates. ``image`` may be grey or BGR. With
+        ``scale`` > 1 the region is read at 1/scale of its size (a large marker needs no more
+        pixels to be read); its corners are then refined at full resolution by OpenCV's
+        sub-pixel corner search in a window of the scale's size."""
+        if scale == 1:
+            corners, ids, _rejected = self._detector.detectMarkers(image)
+            return detections_from_opencv(corners, ids, offset)
+        height, width = image.shape[:2]
+        size = (max(1, width // scale), max(1, height // scale))
+        small = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+        corners, ids, _rejected = self._detector.detectMarkers(small)
+        found = detections_from_opencv(corners, ids)
+        if not found:
+            return []
+        # back to full resolution, then OpenCV's sub-pixel corner refinement there
+        quads = np.concatenate([d.corners for d in found]) * np.float32(scale)
+        quads += np.float32((scale - 1) / 2)
+        grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        window = (scale + 1, scale + 1)
+        cv2.cornerSubPix(grey, quads, window, (-1, -1), _SUBPIX_CRITERIA)
+        quads += np.asarray(offset, dtype=np.float32)
+        return [Detection(d.tag_id, quads[4 * i : 4 * i + 4]) for i, d in enumerate(found)]
 
     def detect_with_rejected(
         self, gray: npt.NDArray[np.uint8]

@@ -1,9 +1,11 @@
-"""Rectangles of a frame to read again: around a quad, and merged so no pixel is read twice."""
+"""Rectangles of a frame to read again, around quads; markers found twice."""
 
 from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+
+from zenoh_perception.detect.types import Detection
 
 #: (x0, y0, x1, y1) in pixels, end exclusive.
 Rect = tuple[int, int, int, int]
@@ -25,25 +27,14 @@ def around(points: npt.NDArray[np.float32], margin: float, width: int, height: i
     return x0, y0, x1, y1
 
 
-def overlap(a: Rect, b: Rect) -> bool:
-    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+def inside(a: Rect, b: Rect) -> bool:
+    """Whether ``a`` lies within ``b``."""
+    return b[0] <= a[0] and b[1] <= a[1] and a[2] <= b[2] and a[3] <= b[3]
 
 
-def merge(rects: list[Rect]) -> list[Rect]:
-    """Rectangles merged until none overlaps another (each pixel is read once); empty ones
-    are left out."""
-    merged = [r for r in rects if r[0] < r[2] and r[1] < r[3]]
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(merged)):
-            for j in range(i + 1, len(merged)):
-                a, b = merged[i], merged[j]
-                if overlap(a, b):
-                    merged[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
-                    del merged[j]
-                    changed = True
-                    break
-            if changed:
-                break
-    return merged
+def same_marker(a: Detection, b: Detection) -> bool:
+    """One marker found twice: same id, centres closer than half its side."""
+    if a.tag_id != b.tag_id:
+        return False
+    distance = float(np.linalg.norm(a.corners.mean(axis=0) - b.corners.mean(axis=0)))
+    return distance < 0.5 * side(b.corners)

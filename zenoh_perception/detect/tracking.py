@@ -9,12 +9,16 @@ previous frame showed (*following*). What it adds is the choice of where to look
   grey levels on average); when one block away from the known markers changed by more than
   ``appear_level`` (something appeared there); whenever a followed marker is not found again
   where it was expected (it moved farther than its region, was hidden or left); when no known
-  marker is in view; and at least every ``full_scan_period`` frames, so a marker that enters
-  a followed scene unnoticed is reported within that many frames.
+  marker is in view; when OpenCV reads, on the frame at a quarter of its size (a glimpse,
+  a sixteenth of the pixels), a marker that no known one explains (a large marker turning
+  into view); and at least every ``full_scan_period`` frames, so a marker that enters a
+  followed scene unnoticed is reported within that many frames.
 - Between scans each known marker is searched for in a region around the place its last two
-  sightings predict (constant velocity), with a margin of half its side plus its motion;
-  regions that overlap are merged and each is read once. Any marker the detector decides on
-  in a region is reported, known or new.
+  sightings predict (constant velocity), with a margin of half its side plus its motion,
+  at the scale that keeps its side at least READ_SIDE_PX (a large marker needs no more
+  pixels to be read); a region inside one already read as finely is skipped, and a marker
+  read in two regions is reported once. Any marker the detector decides on in a region is
+  reported, known or new.
 - The quads a scan saw but OpenCV could not read (its rejected candidates: a marker too
   small, blurred or dim to read yet) are searched in their regions too until the next scan,
   up to ``candidate_regions`` of them, smallest first: a far marker is reported on the first
@@ -39,9 +43,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.pyramid import PyramidScan
-from zenoh_perception.detect.regions import Rect, around, merge, side
+from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
+from zenoh_perception.detect.regions import Rect, around, inside, same_marker, side
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 
@@ -49,6 +52,10 @@ Gray = npt.NDArray[np.uint8]
 
 #: Side of the blocks of the thumbnail that tells scene cuts, appearances and still scenes.
 BLOCK: Final = 16
+#: Scale of the glimpse: the frame read at 1/GLIMPSE of its size between scans.
+GLIMPSE: Final = 4
+#: Side a followed marker keeps when its region is read at a reduced scale, pixels.
+READ_SIDE_PX: Final = 64.0
 #: Smallest margin of a followed marker's region, pixels (OpenCV needs a quiet zone to read).
 MIN_MARGIN_PX: Final = 20.0
 
@@ -63,7 +70,6 @@ class TrackingConfig:
     scene_cut_level: float = 12.0
     appear_level: float = 48.0
     still_level: float = 0.5
-    pyramid: bool = False  # scans by :class:`~.pyramid.PyramidScan` instead of OpenCV's default
 
     def __post_init__(self) -> None:
         if not 1 <= self.full_scan_period <= 1000:
@@ -95,6 +101,10 @@ class _Track:
         """The track of a frame on which it was not found."""
         return _Track(self.tag_id, self.corners, self.motion, self.missed + 1)
 
+    def scale(self) -> int:
+        """How much smaller its region can be read: its side still READ_SIDE_PX or more."""
+        return max(1, int(side(self.corners) // READ_SIDE_PX))
+
     def region(self, width: int, height: int) -> Rect:
         """Around both where it was last seen and where constant motion puts it now (a
         coasting marker may have stopped), inside the frame."""
@@ -117,16 +127,17 @@ class TrackingDetector:
     ) -> None:
         self.config = config if config is not None else TrackingConfig()
         self._opencv = OpenCvDetector(dictionary)
-        self._scanner = PyramidScan(dictionary) if self.config.pyramid else self._opencv
         self._tracks: list[_Track] = []
         self._candidates: list[_Track] = []
         self._thumb: npt.NDArray[np.int16] | None = None
+        self._small: Gray = np.zeros((1, 1), np.uint8)
         self._since_scan = 0
         self.counters: dict[str, int] = {
             "frames": 0,
             "scans": 0,
             "scene_cuts": 0,
             "appearances": 0,
+            "glimpses": 0,
             "lost_rescans": 0,
             "followed": 0,
             "regions": 0,
@@ -135,7 +146,8 @@ class TrackingDetector:
 
     def detect(self, gray: Gray) -> list[Detection]:
         self.counters["frames"] += 1
-        change = self._change(gray)
+        with single_threaded():
+            change = self._change(gray)
         self._since_scan += 1
         if change is None:
             return self._scan(gray)
@@ -152,7 +164,12 @@ class TrackingDetector:
         if self._appeared(change, gray.shape[1], gray.shape[0]):
             self.counters["appearances"] += 1
             return self._scan(gray)
-        found = self._follow(gray)
+        with single_threaded():
+            glimpsed = self._glimpsed()
+            found = None if glimpsed else self._follow(gray)
+        if glimpsed:
+            self.counters["glimpses"] += 1
+            return self._scan(gray)
         if found is None:
             self.counters["lost_rescans"] += 1
             return self._scan(gray)
@@ -168,10 +185,13 @@ class TrackingDetector:
 
     def _change(self, gray: Gray) -> npt.NDArray[np.int16] | None:
         """Absolute change of each block's mean grey level since the previous frame (None:
-        no previous frame of this size)."""
+        no previous frame of this size). Keeps the frame at a quarter of its size for
+        :meth:`_glimpsed`."""
         height, width = gray.shape[:2]
+        quarter = (max(1, width // GLIMPSE), max(1, height // GLIMPSE))
+        self._small = np.asarray(cv2.resize(gray, quarter, interpolation=cv2.INTER_AREA), np.uint8)
         size = (max(1, width // BLOCK), max(1, height // BLOCK))
-        thumb = cv2.resize(gray, size, interpolation=cv2.INTER_AREA).astype(np.int16)
+        thumb = cv2.resize(self._small, size, interpolation=cv2.INTER_AREA).astype(np.int16)
         previous, self._thumb = self._thumb, thumb
         if previous is None or previous.shape != thumb.shape:
             self._tracks, self._candidates = [], []
@@ -189,10 +209,24 @@ class TrackingDetector:
             changed[y0 // BLOCK : -(-y1 // BLOCK), x0 // BLOCK : -(-x1 // BLOCK)] = False
         return bool(changed.any())
 
+    def _glimpsed(self) -> bool:
+        """Whether OpenCV's detector reads, on the frame at a quarter of its size, a marker
+        that no known one explains (a large marker turning into view or coming into focus)."""
+        for found in self._opencv.detect(self._small):
+            centre = _centre(found.corners) * GLIMPSE + (GLIMPSE - 1) / 2
+            if not any(
+                track.tag_id == found.tag_id
+                and float(np.linalg.norm(_centre(track.predicted()) - centre))
+                <= max(side(track.corners), 2.0 * MIN_MARGIN_PX)
+                for track in self._tracks
+            ):
+                return True
+        return False
+
     def _scan(self, gray: Gray) -> list[Detection]:
         self.counters["scans"] += 1
         self._since_scan = 0
-        found, rejected = self._scanner.detect_with_rejected(gray)
+        found, rejected = self._opencv.detect_with_rejected(gray)
         sides = [side(quad) for quad in rejected]
         smallest = sorted(range(len(rejected)), key=sides.__getitem__)
         self._candidates = [
@@ -213,11 +247,18 @@ class TrackingDetector:
         """Markers in the regions around the known ones; None when one that the previous
         frame showed is missing."""
         height, width = gray.shape[:2]
-        regions = merge([t.region(width, height) for t in self._tracks + self._candidates])
-        self.counters["regions"] += len(regions)
         found: list[Detection] = []
-        for x0, y0, x1, y1 in regions:
-            found += self._opencv.detect_region(gray[y0:y1, x0:x1], (x0, y0))
+        read: list[tuple[Rect, int]] = []
+        for track in self._tracks + self._candidates:
+            rect, scale = track.region(width, height), track.scale()
+            if any(inside(rect, done) and s <= scale for done, s in read):
+                continue  # read already, as finely
+            read.append((rect, scale))
+            x0, y0, x1, y1 = rect
+            for detection in self._opencv.detect_region(gray[y0:y1, x0:x1], (x0, y0), scale):
+                if not any(same_marker(detection, other) for other in found):
+                    found.append(detection)
+        self.counters["regions"] += len(read)
         tracks: list[_Track] = []
         unmatched = list(found)
         for track in self._tracks:
