@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
+import socket
 import subprocess
 import time
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.helpers import (
     REPO,
@@ -21,8 +26,9 @@ from tests.helpers import (
     wait_for_subscriber,
 )
 from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
-from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.records import FrameRecord, TagCodec, decode_record
 from zenoh_perception.scene import render_markers
+from zenoh_perception.selection import NO_TAG
 
 W, H = 1280, 720
 
@@ -202,3 +208,164 @@ def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:
         assert camera.returncode == 0, camera.stderr
         record = decode_record(records.get(timeout=20).payload)
         assert record["source"] == "cdr" and record["frame_id"] == "demo"
+
+
+# -- refusals at start-up: exit 2, one line naming what is wrong ---------------------------------
+
+#: A service that wrongly starts is stopped by this timeout (the test then fails).
+_START_TIMEOUT_S = 30.0
+
+
+def _refused(*args: str) -> str:
+    """Run ``run ARGS``; assert it stops at once with exit 2 and a one-line error; return it."""
+    result = run_cli("run", "--no-multicast-scouting", *args, timeout=_START_TIMEOUT_S)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("zenoh-perception: error: ")
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("flags", "named"),
+    [
+        (("--tag-key", "perception/*"), "tag_key"),
+        (("--record-key", "zed/left/image"), "record_key"),
+        (("--input-key", "**"), "tag_key"),
+        (("--status-key", "a//b"), "status_key"),
+        (("--ros-package", "Not-A-Package"), "ros_package"),
+        (("--opencv-threads", str(4 * (os.cpu_count() or 1) + 1)), "opencv_threads"),
+        (("--stats-interval-s", "0.01"), "stats_interval_s"),
+        (("--camera-fx", "1e9", "--camera-fy", "1e9"), "camera_fx"),
+    ],
+)
+def test_run_refuses_invalid_settings_naming_the_setting(
+    flags: tuple[str, ...], named: str
+) -> None:
+    assert named in _refused(*flags)
+
+
+def _fifo(tmp_path: Path) -> Path:
+    path = tmp_path / "fifo.toml"
+    os.mkfifo(path)
+    return path
+
+
+def _huge(tmp_path: Path) -> Path:
+    path = tmp_path / "huge.toml"
+    path.write_text(("# " + "x" * 1021 + "\n") * 1025)
+    return path
+
+
+def _latin1(tmp_path: Path) -> Path:
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('# caf\u00e9\ntag_key = "tag"\n'.encode("latin-1"))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("make", "says"),
+    [(_fifo, "not a regular file"), (_huge, "larger than 1048576"), (_latin1, "not UTF-8")],
+)
+def test_run_refuses_settings_files_that_are_not_small_regular_utf8_files(
+    tmp_path: Path, make: Callable[[Path], Path], says: str
+) -> None:
+    path = make(tmp_path)
+    line = _refused("--settings", str(path))
+    assert str(path) in line and says in line
+
+
+def test_run_with_its_listen_port_in_use_prints_one_line_and_exits_2() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        line = _refused("-l", f"tcp/127.0.0.1:{port}")
+        status = run_cli("status", "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{port}")
+    assert "cannot open the Zenoh session" in line
+    assert f"127.0.0.1:{port}" in line and "Address already in use" in line
+    # The other commands open their sessions the same way.
+    assert status.returncode == 2, status.stderr
+    assert status.stderr.strip().splitlines() == [line]
+
+
+def test_run_refuses_a_frame_limit_that_zenoh_would_drop() -> None:
+    line = _refused(
+        "--max-frame-bytes", "2000000", "--cfg", "transport/link/rx/max_message_size:1000000"
+    )
+    assert "max_frame_bytes = 2000000" in line
+    assert "transport/link/rx/max_message_size = 1000000" in line
+
+
+def test_demo_refuses_frames_over_max_frame_bytes() -> None:
+    result = run_cli(
+        "demo",
+        "--camera-only",
+        "--no-multicast-scouting",
+        "--resolution",
+        "VGA",
+        "--limit",
+        "1",
+        "--max-frame-bytes",
+        "100000",
+        timeout=60,
+    )
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert "is 1228800 bytes, over max_frame_bytes = 100000" in result.stderr
+    assert "transport/link/rx/max_message_size" in result.stderr
+
+
+# -- echo: lost records -------------------------------------------------------------------------
+
+
+def _record(seq: int) -> bytes:
+    return FrameRecord(
+        stamp_ns=seq,
+        frame_id="cam",
+        seq=seq,
+        width=64,
+        height=48,
+        selected=NO_TAG,
+        tags=(),
+        timing_ms={"latency_ms": 1.0},
+        source="raw",
+    ).to_msgpack()
+
+
+def test_echo_prints_and_counts_gaps_in_the_record_seq(endpoint: str) -> None:
+    with open_session(listen=[endpoint]) as service:
+        echo = subprocess.Popen(
+            cli_command(
+                "echo",
+                "-e",
+                endpoint,
+                "--no-multicast-scouting",
+                "--json",
+                "--count",
+                "5",
+                "--timeout",
+                "60",
+            ),
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            publisher = service.declare_publisher("perception/tags")
+            wait_for_subscriber(publisher, timeout=60)
+            for seq in (1, 2, 5, 6, 9):
+                publisher.put(_record(seq))
+            out, err = echo.communicate(timeout=60)
+        finally:
+            if echo.poll() is None:
+                echo.kill()
+                echo.communicate()
+    assert echo.returncode == 0, err
+    lines = [json.loads(line) for line in out.splitlines()]
+    gaps = [line["gap"] for line in lines if "gap" in line]
+    assert gaps == [{"after": 2, "next": 5, "missing": 2}, {"after": 6, "next": 9, "missing": 2}]
+    assert [line["seq"] for line in lines if "seq" in line] == [1, 2, 5, 6, 9]
+    assert "echo: records=5 gaps=2 missing=4 restarts=0" in err

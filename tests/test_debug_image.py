@@ -17,7 +17,7 @@ import numpy.typing as npt
 import pytest
 import zenoh
 
-from tests.helpers import Collector, open_session, query_status, wait_for_subscriber
+from tests.helpers import Collector, open_session, query_status, wait_for_subscriber, wait_until
 from zenoh_perception.debug_image import annotate as real_annotate
 from zenoh_perception.debug_image import encode_compressed_image as real_encode
 from zenoh_perception.frames import RawFrameMeta
@@ -58,12 +58,12 @@ class _Rig:
     spy: _Spy
     seq: int = 0
 
-    def send_and_wait(self) -> dict[str, Any]:
-        """Publish one frame and return its record (its tag arrived too)."""
+    def send_and_wait(self, stamp_ns: int | None = None) -> dict[str, Any]:
+        """Publish one frame (stamped ``stamp_ns``, by default BASE_STAMP + its seq) and
+        return its record (its tag arrived too)."""
         self.seq += 1
-        meta = RawFrameMeta(
-            W, H, "bgra8", stamp_ns=BASE_STAMP + self.seq, frame_id=FRAME_ID, seq=self.seq
-        )
+        stamp = BASE_STAMP + self.seq if stamp_ns is None else stamp_ns
+        meta = RawFrameMeta(W, H, "bgra8", stamp_ns=stamp, frame_id=FRAME_ID, seq=self.seq)
         self.publisher.put(FRAME.tobytes(), attachment=meta.to_msgpack())
         record = decode_record(self.records.get().payload)
         assert record["seq"] == self.seq
@@ -83,7 +83,8 @@ def rig(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[_Rig]:
         spy.encode += 1
         return real_encode(*args, **kwargs)
 
-    # The service calls these through its module globals: patch them there.
+    # The service calls these through its module globals: patch them there (a test may patch
+    # annotate again to make it fail).
     monkeypatch.setattr("zenoh_perception.service.annotate", annotate)
     monkeypatch.setattr("zenoh_perception.service.encode_compressed_image", encode)
     # No rate cap in the way: every watched frame yields a debug image.
@@ -199,3 +200,61 @@ def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.Mon
         assert status["debug_image"] == {"watched": False, "published": 0}
         assert viewer.drain() == []
     assert encoded == []
+
+
+def _stamp_of(sample_payload: bytes) -> int:
+    msg: Any = TYPESTORE.deserialize_cdr(sample_payload, COMPRESSED_IMAGE_TYPE)
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+#: The last instant builtin_interfaces/Time (int32 seconds) can hold.
+ROS_TIME_MAX_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
+
+
+def test_a_stamp_ros_time_cannot_hold_is_clamped_in_the_debug_image() -> None:
+    image = np.zeros((8, 8, 3), dtype=np.uint8)
+    cdr = bytes(real_encode(image, quality=80, stamp_ns=2**62, frame_id="f"))
+    assert _stamp_of(cdr) == ROS_TIME_MAX_NS
+
+
+def test_a_raw_frame_stamped_after_2038_gets_its_debug_image(rig: _Rig) -> None:
+    """Raw stamps are 64-bit; the debug image's ROS header holds int32 seconds: clamped."""
+    viewer = Collector(rig.camera, DEBUG_KEY)
+    _wait_watched(rig.camera, watched=True)
+    record = rig.send_and_wait(stamp_ns=2**62)
+    assert record["stamp_ns"] == 2**62  # the record keeps the frame's own stamp
+    assert _stamp_of(viewer.get().payload) == ROS_TIME_MAX_NS
+    status = query_status(rig.camera)
+    assert status is not None and status["worker_alive"] is True
+
+
+def test_a_failing_debug_image_is_a_counted_processing_error_not_a_dead_worker(
+    rig: _Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    failures: list[int] = []
+
+    def annotate_failing_once(*args: Any, **kwargs: Any) -> Pixels:
+        if not failures:
+            failures.append(1)
+            msg = "simulated drawing failure"
+            raise cv2.error(msg)
+        return real_annotate(*args, **kwargs)
+
+    monkeypatch.setattr("zenoh_perception.service.annotate", annotate_failing_once)
+    viewer = Collector(rig.camera, DEBUG_KEY)
+    _wait_watched(rig.camera, watched=True)
+    rig.send_and_wait()  # its tag and record are out before the debug image fails
+
+    def processing_errors() -> dict[str, int]:
+        status = query_status(rig.camera)
+        return {} if status is None else dict(status["processing_errors"])
+
+    wait_until(lambda: processing_errors() == {"debug_image": 1}, what="the failure counted")
+    rig.send_and_wait()  # the worker goes on, and draws the next one
+    assert _stamp_of(viewer.get().payload) == BASE_STAMP + rig.seq
+    status = query_status(rig.camera)
+    assert status is not None
+    assert status["worker_alive"] is True
+    assert status["frames"]["processed"] == 2
+    assert status["frames"]["rejected"] == 0  # answered frames are no rejections
+    assert status["debug_image"]["published"] == 1

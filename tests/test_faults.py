@@ -8,10 +8,12 @@
 - A detector error on one frame (OpenCV raises cv2.error) is counted as a rejection
   (``processing_error``) and the worker goes on answering frames.
 - SIGTERM while the worker is busy with an HD2K frame stream exits 0 within 2 s.
+- A client waiting for its router logs the retries at most once per ``log_interval_s``.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
 import signal
 import subprocess
@@ -37,6 +39,7 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
+from zenoh_perception import service as service_module
 from zenoh_perception.bench.flood import RESOLUTIONS, MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
@@ -312,3 +315,36 @@ def test_client_mode_waits_for_a_router_that_is_not_up_yet(endpoint: str) -> Non
             assert status["worker_alive"] is True
         assert proc.poll() is None
     assert proc.returncode == 0
+
+
+def test_connection_retries_are_logged_at_most_once_per_interval(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Every retry of a client whose router is down is one log line without the rate limit."""
+    caplog.set_level(logging.WARNING, logger="zenoh_perception.service")
+    attempts: list[int] = []
+
+    def refuse(_conf: zenoh.Config) -> zenoh.Session:
+        attempts.append(1)
+        msg = "simulated: no router"
+        raise zenoh.ZError(msg)
+
+    monkeypatch.setattr(zenoh, "open", refuse)
+    stop = threading.Event()
+    results: list[zenoh.Session | None] = []
+    conf = loopback_config(mode="client", connect=[endpoint])
+    waiter = threading.Thread(
+        target=lambda: results.append(
+            service_module.open_session(conf, stop, retry_s=0.01, log_interval_s=60)
+        )
+    )
+    waiter.start()
+    try:
+        wait_until(lambda: len(attempts) >= 10, what="ten connection attempts")
+    finally:
+        stop.set()
+        waiter.join(timeout=10)
+    assert results == [None]
+    lines = [r.getMessage() for r in caplog.records if "event=connect_failed" in r.getMessage()]
+    assert len(lines) == 1, lines
+    assert "simulated: no router" in lines[0]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import msgpack
 import numpy as np
 import pytest
@@ -13,19 +15,25 @@ from zenoh_perception.errors import (
     DimensionError,
     FrameDecodeError,
     ImageCdrError,
+    PayloadTooLargeError,
     SizeMismatchError,
+    StampError,
+    TooManyPixelsError,
     UnsupportedEncodingError,
 )
 from zenoh_perception.frames import (
     ENCODINGS,
     MAX_ATTACHMENT_BYTES,
+    MAX_STAMP_NS,
     RawFrameMeta,
+    check_payload_size,
     decode_attachment,
     decode_image_cdr,
     decode_raw_frame,
     encode_image_cdr,
     to_gray,
 )
+from zenoh_perception.messages import TYPESTORE, header
 
 
 def _pixels(height: int, width: int, channels: int, seed: int = 0) -> np.ndarray:
@@ -86,7 +94,8 @@ def test_attachment_defaults_to_bgra8_without_step() -> None:
         (msgpack.packb({"width": True, "height": 4}), AttachmentError),
         (msgpack.packb({"width": 5.0, "height": 4}), AttachmentError),
         (msgpack.packb({"width": 5, "height": 4, "encoding": 3}), AttachmentError),
-        (msgpack.packb({"width": 5, "height": 4, "stamp_ns": -1}), AttachmentError),
+        (msgpack.packb({"width": 5, "height": 4, "stamp_ns": -1}), StampError),
+        (msgpack.packb({"width": 5, "height": 4, "stamp_ns": 2**63}), StampError),
         (msgpack.packb({"width": 5, "height": 4, "frame_id": "x" * 300}), AttachmentError),
         (
             msgpack.packb({"width": 5, "height": 4, "x": "y" * MAX_ATTACHMENT_BYTES}),
@@ -112,17 +121,77 @@ def test_inconsistent_raw_frames_are_rejected_with_their_reason(
 
 
 def test_reasons_are_distinct_per_concern() -> None:
-    reasons = {
-        cls.reason
-        for cls in (
-            AttachmentError,
-            ImageCdrError,
-            UnsupportedEncodingError,
-            DimensionError,
-            SizeMismatchError,
-        )
-    }
-    assert len(reasons) == 5
+    classes = (
+        AttachmentError,
+        ImageCdrError,
+        UnsupportedEncodingError,
+        DimensionError,
+        SizeMismatchError,
+        PayloadTooLargeError,
+        TooManyPixelsError,
+        StampError,
+    )
+    assert len({cls.reason for cls in classes}) == len(classes)
+
+
+def test_frames_over_the_pixel_limit_are_refused_raw_and_cdr_alike() -> None:
+    pixels = _pixels(30, 40, 1)  # 1200 pixels
+    meta = RawFrameMeta(40, 30, "mono8").to_msgpack()
+    cdr = bytes(encode_image_cdr(pixels, "mono8"))
+    assert decode_raw_frame(pixels.tobytes(), meta, max_pixels=1200).width == 40
+    assert decode_image_cdr(cdr, max_pixels=1200).width == 40
+    with pytest.raises(TooManyPixelsError, match="max_frame_pixels = 1199"):
+        decode_raw_frame(pixels.tobytes(), meta, max_pixels=1199)
+    with pytest.raises(TooManyPixelsError):
+        decode_image_cdr(cdr, max_pixels=1199)
+    # A header that lies about its size is a size mismatch, whatever it claims.
+    with pytest.raises(SizeMismatchError):
+        decode_raw_frame(bytes(10), RawFrameMeta(4000, 3000, "mono8").to_msgpack(), max_pixels=1)
+
+
+def test_payload_size_limit() -> None:
+    check_payload_size(1024, 1024)
+    with pytest.raises(PayloadTooLargeError, match="1025 bytes exceeds max_frame_bytes = 1024"):
+        check_payload_size(1025, 1024)
+
+
+def _cdr_with_stamp(sec: int, nanosec: int) -> bytes:
+    """Image CDR whose header carries (sec, nanosec) exactly (negative seconds included)."""
+    good: Any = TYPESTORE.deserialize_cdr(
+        encode_image_cdr(_pixels(2, 3, 4), "bgra8", frame_id="f"), "sensor_msgs/msg/Image"
+    )
+    types = TYPESTORE.types
+    good.header = types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="f"
+    )
+    return bytes(TYPESTORE.serialize_cdr(good, "sensor_msgs/msg/Image"))
+
+
+def test_negative_stamps_are_refused_raw_and_cdr_alike() -> None:
+    """One rule for both inputs: a stamp before the epoch is a bad_stamp rejection."""
+    pixels = _pixels(2, 3, 4)
+    raw_meta = msgpack.packb({"width": 3, "height": 2, "stamp_ns": -1})
+    with pytest.raises(StampError) as raw:
+        decode_raw_frame(pixels.tobytes(), raw_meta)
+    with pytest.raises(StampError) as cdr:
+        decode_image_cdr(_cdr_with_stamp(-1, 999_999_999))  # -1 ns
+    assert raw.value.reason == cdr.value.reason == "bad_stamp"
+    # Stamp 0 and the largest CDR stamp are accepted by both.
+    zero = msgpack.packb({"width": 3, "height": 2, "stamp_ns": 0})
+    assert decode_raw_frame(pixels.tobytes(), zero).stamp_ns == 0
+    assert decode_image_cdr(_cdr_with_stamp(0, 0)).stamp_ns == 0
+    last = _cdr_with_stamp(2**31 - 1, 999_999_999)
+    assert decode_image_cdr(last).stamp_ns == (2**31 - 1) * 10**9 + 999_999_999
+    big = msgpack.packb({"width": 3, "height": 2, "stamp_ns": MAX_STAMP_NS})
+    assert decode_raw_frame(pixels.tobytes(), big).stamp_ns == MAX_STAMP_NS
+
+
+def test_header_clamps_stamps_to_what_ros_time_holds() -> None:
+    assert header(2**62, "f").stamp.sec == 2**31 - 1
+    assert header(2**62, "f").stamp.nanosec == 999_999_999
+    assert header(-(2**62), "f").stamp.sec == -(2**31)
+    assert header(-5, "f").stamp.sec == -1
+    assert header(-5, "f").stamp.nanosec == 999_999_995
 
 
 def test_attachment_roundtrip_keeps_every_field() -> None:

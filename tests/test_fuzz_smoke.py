@@ -6,7 +6,14 @@ from collections import Counter
 
 from zenoh_perception.bench.fuzz import GENERATORS, OK, cases, expected_outcome, run_fuzz
 
-_REASONS = {"bad_attachment", "bad_cdr", "bad_dimensions", "size_mismatch", "unsupported_encoding"}
+_REASONS = {
+    "bad_attachment",
+    "bad_cdr",
+    "bad_dimensions",
+    "bad_stamp",
+    "size_mismatch",
+    "unsupported_encoding",
+}
 
 
 def test_generators_make_malformed_payloads_of_every_rejection_reason() -> None:

@@ -9,7 +9,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from zenoh_perception.errors import IntrinsicsError
 from zenoh_perception.geometry import (
+    check_intrinsics,
     closeness_from_area,
     closeness_from_distance,
     mean_side,
@@ -18,6 +20,7 @@ from zenoh_perception.geometry import (
 )
 from zenoh_perception.selection import (
     NO_TAG,
+    Metric,
     Policy,
     TagObservation,
     select_tag,
@@ -66,9 +69,11 @@ def test_distance_closeness_is_clamped(distance: float, max_range: float) -> Non
     assert 0.0 <= closeness_from_distance(distance, max_range) <= 1.0
 
 
-def _tag(tag_id: int, x: float, y: float, closeness: float) -> TagObservation:
+def _tag(
+    tag_id: int, x: float, y: float, closeness: float, metric: Metric = Metric.AREA
+) -> TagObservation:
     corners = tuple((float(a), float(b)) for a, b in _square(x - 5, y - 5, 10))
-    return TagObservation(tag_id, x, y, closeness, corners, 100.0)
+    return TagObservation(tag_id, x, y, closeness, corners, 100.0, metric=metric)
 
 
 def test_no_detection_selects_the_dummy() -> None:
@@ -120,3 +125,68 @@ def test_mean_side_of_a_square_and_a_rectangle() -> None:
     assert mean_side(square) == pytest.approx(10.0)
     rectangle = np.array([[5, 5], [25, 5], [25, 15], [5, 15]], dtype=np.float64)
     assert mean_side(rectangle) == pytest.approx(15.0)  # (20 + 10 + 20 + 10) / 4
+
+
+def test_tags_without_a_distance_rank_after_every_tag_with_one() -> None:
+    """Under metric=distance, an area closeness (no pose) is not comparable to a distance."""
+    far_with_pose = _tag(1, 100, 100, 0.9, Metric.DISTANCE)
+    near_with_pose = _tag(2, 500, 400, 0.6, Metric.DISTANCE)
+    big_without_pose = _tag(3, 320, 240, 0.1, Metric.AREA)
+    tags = [big_without_pose, far_with_pose, near_with_pose]
+    assert selected_message(tags, 640, 480).tag_id == 2
+    assert selected_message([big_without_pose, far_with_pose], 640, 480).tag_id == 1
+    assert selected_message([big_without_pose], 640, 480).tag_id == 3
+    # center: the centre decides; the metric only breaks a tie of the centre distance.
+    assert selected_message(tags, 640, 480, Policy.CENTER).tag_id == 3
+    twins = [_tag(4, 300, 240, 0.1, Metric.AREA), _tag(5, 340, 240, 0.9, Metric.DISTANCE)]
+    assert selected_message(twins, 640, 480, Policy.CENTER).tag_id == 5
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(min_value=0, max_value=49),
+            st.floats(min_value=0, max_value=640),
+            st.floats(min_value=0, max_value=480),
+            st.floats(min_value=0, max_value=1),
+            st.sampled_from(list(Metric)),
+        ),
+        min_size=1,
+        max_size=8,
+    )
+)
+def test_closest_picks_the_lowest_distance_when_any_tag_has_one(
+    raw: list[tuple[int, float, float, float, Metric]],
+) -> None:
+    tags = [_tag(*fields) for fields in raw]
+    chosen = select_tag(tags, 640, 480)
+    assert chosen is not None
+    ranked = [t for t in tags if t.metric == Metric.DISTANCE] or tags
+    assert chosen in ranked
+    assert chosen.closeness == min(t.closeness for t in ranked)
+
+
+def test_plausible_intrinsics_pass() -> None:
+    check_intrinsics(700.0, 700.0, 640.0, 360.0, width=1280, height=720)
+    check_intrinsics(500.0, 500.0, 319.5, 239.5)
+
+
+@pytest.mark.parametrize(
+    ("intrinsics", "size", "match"),
+    [
+        ((0.0, 500.0, 320.0, 240.0), (640, 480), "fx"),
+        ((500.0, 1e9, 320.0, 240.0), (640, 480), "fy"),
+        ((500.0, 100.0, 320.0, 240.0), (640, 480), "factor"),
+        ((500.0, 500.0, 0.0, 0.0), (640, 480), "principal point"),
+        ((500.0, 500.0, 700.0, 240.0), (640, 480), "principal point"),
+        ((500.0, 500.0, 320.0, 240.0), (200, 100), "principal point"),
+        ((math.nan, 500.0, 320.0, 240.0), (640, 480), "finite"),
+        ((500.0, 500.0, 320.0, math.inf), (0, 0), "finite"),
+    ],
+)
+def test_implausible_intrinsics_are_refused(
+    intrinsics: tuple[float, float, float, float], size: tuple[int, int], match: str
+) -> None:
+    with pytest.raises(IntrinsicsError, match=match) as info:
+        check_intrinsics(*intrinsics, width=size[0], height=size[1])
+    assert info.value.reason == "bad_intrinsics"

@@ -15,7 +15,7 @@ from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.frames import RawFrameMeta, decode_attachment
 from zenoh_perception.mailbox import LatestMailbox
 from zenoh_perception.records import FrameRecord, TagCodec, decode_record, f32
-from zenoh_perception.selection import NO_TAG, TagObservation
+from zenoh_perception.selection import NO_TAG, Metric, TagObservation
 from zenoh_perception.stats import LogGate, ServiceStats
 
 SCHEMAS = Path(__file__).resolve().parent.parent / "schemas"
@@ -52,6 +52,11 @@ TAG = TagObservation(
     distance_m=2.5,
     rvec=(0.1, 0.2, 0.3),
     tvec=(0.0, 0.5, 2.4),
+    metric=Metric.DISTANCE,
+)
+#: A tag without a pose: its closeness comes from its area.
+AREA_TAG = TagObservation(
+    9, 300.0, 100.0, 0.7, ((290.0, 90.0), (310.0, 90.0), (310.0, 110.0), (290.0, 110.0)), 400.0
 )
 
 
@@ -66,6 +71,21 @@ def test_record_roundtrip_matches_the_schema(tags: tuple[TagObservation, ...]) -
         assert record["tags"][0]["distance_m"] == 2.5
     else:
         assert record["selected"]["tag_id"] == -1
+
+
+def test_each_tag_of_the_record_says_which_metric_its_closeness_used() -> None:
+    schema = _schema("perception-tags.schema.json")
+    record = decode_record(_record((TAG, AREA_TAG)).to_msgpack())
+    jsonschema.validate(record, schema)
+    assert [tag["metric"] for tag in record["tags"]] == ["distance", "area"]
+    assert "distance_m" not in record["tags"][1]
+    for tag in record["tags"]:
+        del tag["metric"]
+    with pytest.raises(jsonschema.ValidationError, match="metric"):
+        jsonschema.validate(record, schema)
+    record["tags"][0]["metric"] = "loudness"
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(record, schema)
 
 
 def test_record_selected_equals_the_tag_message_bit_for_bit() -> None:
@@ -144,6 +164,7 @@ def test_stats_percentiles_and_counts() -> None:
         stats.on_processed(float(i + 1))
     stats.on_rejected("bad_cdr")
     stats.on_rejected("bad_cdr")
+    now[0] += 0.05  # off the 0.1 s grid: no frame sits on the edge of the 5 s fps window
     snap = stats.snapshot()
     assert (snap.received, snap.processed, snap.dropped) == (100, 100, 10)
     assert snap.rejected == {"bad_cdr": 2}
@@ -151,6 +172,54 @@ def test_stats_percentiles_and_counts() -> None:
     assert snap.latency_p99_ms == pytest.approx(99.01)
     assert snap.fps == pytest.approx(10.0)
     assert snap.as_dict()["frames"]["rejected"] == 2
+
+
+def test_fps_is_frames_over_wall_time() -> None:
+    """Two frames done 1 ms apart, then a quiet second: 2 frames in 2 s of uptime, not 1000
+    frames per second."""
+    now = [0.0]
+    stats = ServiceStats(clock=lambda: now[0])
+    now[0] = 1.0
+    stats.on_processed(1.0)
+    now[0] = 1.001
+    stats.on_processed(1.0)
+    now[0] = 2.0
+    assert stats.snapshot().fps == pytest.approx(1.0)
+    now[0] = 10.0  # the window (5 s) is full and holds both frames no more
+    assert stats.snapshot().fps == 0.0
+    for _ in range(50):  # 10 Hz for 5 s
+        now[0] += 0.1
+        stats.on_processed(1.0)
+    now[0] += 0.05
+    assert stats.snapshot().fps == pytest.approx(10.0)
+
+
+def test_budget_counts_frames_over_it_and_keeps_the_worst_times() -> None:
+    stats = ServiceStats(frame_budget_ms=10.0)
+    stats.on_processed(5.0, frame_ms=9.0, detect_ms=7.0)
+    stats.on_processed(25.0, frame_ms=24.5, detect_ms=20.0)
+    stats.on_processed(12.0, frame_ms=11.0, detect_ms=21.0)
+    budget = stats.snapshot().as_dict()["budget"]
+    assert budget == {
+        "frame_budget_ms": 10.0,
+        "over_budget": 2,
+        "frame_ms_max": 24.5,
+        "detect_ms_max": 21.0,
+    }
+
+
+def test_publish_processing_and_camera_info_counters() -> None:
+    stats = ServiceStats()
+    stats.on_publish_error("record")
+    stats.on_processing_error("debug_image")
+    stats.on_camera_info("bad_intrinsics")
+    stats.on_camera_info(None)
+    status = stats.snapshot().as_dict()
+    assert status["publish_errors"] == {"tag": 0, "record": 1, "debug_image": 0}
+    assert status["processing_errors"] == {"debug_image": 1}
+    assert status["camera_info"] == {"received": 2, "rejected_by_reason": {"bad_intrinsics": 1}}
+    # Neither is a frame: the frame counters stay as they were.
+    assert status["frames"] == {"received": 0, "processed": 0, "dropped": 0, "rejected": 0}
 
 
 def test_log_gate_admits_once_per_interval_and_reports_suppressed() -> None:

@@ -519,6 +519,29 @@ def test_main_loops_up_to_the_limit_and_draws_progress(endpoint: str) -> None:
     assert "23/23 frames" in stream.getvalue().rsplit("\r", 1)[-1]
 
 
+class _GrowingSource:
+    """Frames of 1000, 2000, 3000, ... bytes."""
+
+    kind = "test frames"
+    count = 5
+
+    def frames(self, *, epoch_ns: int = 0, seq_start: int = 0) -> Frames:
+        for i in range(self.count):
+            yield SourceFrame(bytes(1000 * (i + 1)), b"\x80", epoch_ns + i)
+
+
+def test_main_stops_before_a_frame_over_max_frame_bytes(endpoint: str) -> None:
+    options = ReplayOptions(key="replay/test", pacing=Pacing.ASAP, max_frame_bytes=2500)
+    with open_session(listen=[endpoint]) as session:
+        frames = Collector(session, "replay/test")
+        conf = loopback_config(connect=[endpoint])
+        with pytest.raises(ReplayError, match=r"frame 3 of the test frames is 3000 bytes"):
+            main(conf, _GrowingSource(), options, threading.Event())
+        got = [len(frames.get().payload) for _ in range(2)]
+        assert got == [1000, 2000]
+        assert frames.drain() == []
+
+
 def test_main_returns_when_stopped_while_waiting_for_a_subscriber() -> None:
     stop = threading.Event()
     stop.set()
@@ -573,6 +596,21 @@ def test_cli_gives_up_without_a_subscriber(tmp_path: Path) -> None:
         output, _ = proc.communicate(timeout=REPLAY_TIMEOUT_S)
     assert proc.returncode == 2
     assert "no subscriber on 'zed/left/image'" in output
+
+
+def test_cli_refuses_frames_over_max_frame_bytes(tmp_path: Path, endpoint: str) -> None:
+    folder = tmp_path / "images"
+    _write_images(folder)  # 320 x 180 BGRA: 230400 bytes a frame
+    with open_session(listen=[endpoint]) as camera_side:
+        frames = Collector(camera_side, "zed/left/image")
+        args = _replay_args(folder, endpoint, "--max-frame-bytes", "100000")
+        with running_cli(*args) as proc:
+            output, _ = proc.communicate(timeout=REPLAY_TIMEOUT_S)
+        assert frames.drain() == []
+    assert proc.returncode == 2, output
+    assert "Traceback" not in output
+    assert "frame 1 of the images is 230400 bytes, over max_frame_bytes = 100000" in output
+    assert "--max-frame-bytes" in output and "transport/link/rx/max_message_size" in output
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import gc
+import logging
 import queue
 import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,6 +19,8 @@ from tests.helpers import (
     Collector,
     loopback_config,
     open_session,
+    query_status,
+    running_cli,
     wait_for_status,
     wait_for_subscriber,
     wait_until,
@@ -78,6 +83,10 @@ def _rig(settings: Settings, endpoint: str) -> Iterator[Rig]:
             yield Rig(service, camera, publisher, tags, records)
         finally:
             service.close()
+
+
+#: The rig as a context manager, for tests with settings of their own.
+rig_with = contextmanager(_rig)
 
 
 @pytest.fixture
@@ -181,9 +190,9 @@ def test_center_policy_and_custom_keys(endpoint: str) -> None:
         assert tag.tag_id == 3
 
 
-def test_camera_info_enables_distance_in_the_record(endpoint: str) -> None:
-    settings = Settings(camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0)
-    fx = 500.0
+def _camera_info(fx: float, fy: float | None = None) -> bytes:
+    """sensor_msgs/CameraInfo CDR of a WIDTH x HEIGHT camera with focal lengths fx, fy."""
+    fy = fx if fy is None else fy
     types = TYPESTORE.types
     info = types[CAMERA_INFO_TYPE](
         header=types["std_msgs/msg/Header"](
@@ -193,7 +202,7 @@ def test_camera_info_enables_distance_in_the_record(endpoint: str) -> None:
         width=WIDTH,
         distortion_model="plumb_bob",
         d=np.zeros(5),
-        k=np.array([fx, 0, 319.5, 0, fx, 239.5, 0, 0, 1], dtype=np.float64),
+        k=np.array([fx, 0, 319.5, 0, fy, 239.5, 0, 0, 1], dtype=np.float64),
         r=np.eye(3).reshape(-1),
         p=np.zeros(12),
         binning_x=0,
@@ -202,10 +211,15 @@ def test_camera_info_enables_distance_in_the_record(endpoint: str) -> None:
             x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
         ),
     )
+    return bytes(TYPESTORE.serialize_cdr(info, CAMERA_INFO_TYPE))
+
+
+def test_camera_info_enables_distance_in_the_record(endpoint: str) -> None:
+    settings = Settings(camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0)
     for rig in _rig(settings, endpoint):
         info_pub = rig.camera.declare_publisher("zed/left/camera_info")
         wait_for_subscriber(info_pub)
-        info_pub.put(bytes(TYPESTORE.serialize_cdr(info, CAMERA_INFO_TYPE)))
+        info_pub.put(_camera_info(500.0))
         # A 100 px tag of 0.2 m seen fronto-parallel by fx=500 is 1.0 m away.
         image = render_markers(WIDTH, HEIGHT, [(5, square(269.5, 189.5, 100))])
         deadline_tries = 50
@@ -257,3 +271,204 @@ def test_run_moves_what_start_up_made_out_of_the_collectors_way(endpoint: str) -
         thread.join(timeout=20)
         gc.unfreeze()
     assert exit_codes == [0]
+
+
+# -- limits and the per-frame budget, through the real service process --------------------------
+
+_BLOCK = zenoh.CongestionControl.BLOCK
+
+
+def _record_with_seq(records: Collector, seq: int) -> dict[str, Any]:
+    while True:
+        record = decode_record(records.get(timeout=30).payload)
+        if record["seq"] == seq:
+            return record
+
+
+def _frame_ms(timing: dict[str, float]) -> float:
+    return timing["decode_ms"] + timing["convert_ms"] + timing["detect_ms"]
+
+
+def test_run_refuses_oversized_frames_and_reports_the_per_frame_budget(endpoint: str) -> None:
+    """A 4-megapixel frame is refused by size (BGRA, 16 MB) or by pixels (mono8, 4 MB); 2 MP
+    frames within both limits are answered, and status reports their worst times, the frames
+    over a 1 ms budget and the frame rate as frames over wall time."""
+    flags = (
+        "--max-frame-bytes", "9000000",
+        "--max-frame-pixels", "3000000",
+        "--frame-budget-ms", "1",
+        "--stats-interval-s", "0",
+        "--log-interval-s", "60",
+    )  # fmt: skip
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting", *flags) as proc,
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        records = Collector(camera, "perception/tags")
+        publisher = camera.declare_publisher("zed/left/image", congestion_control=_BLOCK)
+        wait_for_subscriber(publisher)
+
+        def rejected() -> dict[str, int]:
+            status = query_status(camera)
+            return {} if status is None else dict(status["rejected_by_reason"])
+
+        big = np.zeros((1600, 2560, 4), dtype=np.uint8)
+        publisher.put(big.tobytes(), attachment=RawFrameMeta(2560, 1600).to_msgpack())
+        wait_until(lambda: rejected() == {"payload_too_large": 1}, what="size rejection")
+        grey = np.ascontiguousarray(big[:, :, 0])
+        publisher.put(grey.tobytes(), attachment=RawFrameMeta(2560, 1600, "mono8").to_msgpack())
+        wait_until(
+            lambda: rejected() == {"payload_too_large": 1, "too_many_pixels": 1},
+            what="pixel rejection",
+        )
+        frame = render_markers(1920, 1080, [(7, square(800, 400, 300))])
+        timings: list[dict[str, float]] = []
+        for seq in range(3):
+            meta = RawFrameMeta(1920, 1080, seq=seq).to_msgpack()
+            publisher.put(frame.tobytes(), attachment=meta)
+            record = _record_with_seq(records, seq)
+            assert record["selected"]["tag_id"] == 7
+            timings.append(record["timing"])
+        answered = query_status(camera)
+        assert answered is not None
+        # A quiet second of the service's own clock after the last answer.
+        wait_until(
+            lambda: (query_status(camera) or answered)["uptime_s"] >= answered["uptime_s"] + 1.0,
+            what="a quiet second",
+        )
+        status = query_status(camera)
+        assert status is not None
+        assert proc.poll() is None
+    assert status["frames"]["processed"] == 3
+    assert status["rejected_by_reason"] == {"payload_too_large": 1, "too_many_pixels": 1}
+    budget = status["budget"]
+    assert budget["frame_budget_ms"] == 1.0
+    assert budget["detect_ms_max"] == pytest.approx(max(t["detect_ms"] for t in timings), abs=2e-3)
+    assert budget["frame_ms_max"] == pytest.approx(max(_frame_ms(t) for t in timings), abs=2e-3)
+    assert budget["over_budget"] == sum(_frame_ms(t) > 1.0 for t in timings)
+    # Frames over wall time: the three frames over the window (5 s, or the uptime if shorter).
+    assert status["fps"] == pytest.approx(3 / min(5.0, status["uptime_s"]), rel=0.01)
+
+
+# -- the distance metric ------------------------------------------------------------------------
+
+
+def test_distance_metric_ranks_tags_without_a_pose_after_tags_with_one(endpoint: str) -> None:
+    """Tag 7 has a size (a pose, 1.67 m: closeness 0.83 over 2 m); tag 3 has none and keeps its
+    area closeness (0.64), which is not comparable: tag 7 is selected."""
+    settings = Settings(
+        metric="distance",
+        max_range_m=2.0,
+        tag_sizes=((7, 0.2),),
+        camera_fx=500.0,
+        camera_fy=500.0,
+        camera_cx=319.5,
+        camera_cy=239.5,
+        stats_interval_s=0,
+    )
+    image = render_markers(WIDTH, HEIGHT, [(7, square(450, 60, 60)), (3, square(60, 200, 200))])
+    for rig in _rig(settings, endpoint):
+        rig.put_raw(image)
+        tag, record = rig.answer()
+        tags = {t["tag_id"]: t for t in record["tags"]}  # type: ignore[attr-defined]
+        assert tags[3]["closeness_metric"] < tags[7]["closeness_metric"]
+        assert tag.tag_id == 7
+        assert tag.closeness_metric == pytest.approx(tags[7]["distance_m"] / 2.0, abs=1e-6)
+        assert tags[7]["metric"] == "distance" and "distance_m" in tags[7]
+        assert tags[3]["metric"] == "area" and "distance_m" not in tags[3]
+
+
+def test_implausible_camera_info_is_counted_and_ignored(endpoint: str) -> None:
+    settings = Settings(camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0)
+    with rig_with(settings, endpoint) as rig:
+        info_pub = rig.camera.declare_publisher("zed/left/camera_info")
+        wait_for_subscriber(info_pub)
+
+        def camera_info() -> dict[str, Any]:
+            info: dict[str, Any] = rig.service.status()["camera_info"]
+            return info
+
+        info_pub.put(_camera_info(5e7))  # no lens has that focal length in pixels
+        info_pub.put(_camera_info(500.0, 50.0))  # pixels ten times taller than wide
+        info_pub.put(b"\x00\x01\x00\x00garbage")
+        wait_until(lambda: camera_info()["received"] == 3, what="three CameraInfo samples")
+        assert camera_info() == {
+            "received": 3,
+            "rejected_by_reason": {"bad_intrinsics": 2, "bad_camera_info": 1},
+            "intrinsics": None,
+        }
+        rig.put_raw(SCENE)
+        _tag, record = rig.answer()
+        assert all("distance_m" not in t for t in record["tags"])  # type: ignore[attr-defined]
+        info_pub.put(_camera_info(500.0))
+        wait_until(lambda: camera_info()["intrinsics"] is not None, what="good intrinsics")
+        assert camera_info()["intrinsics"] == {"fx": 500.0, "fy": 500.0, "cx": 319.5, "cy": 239.5}
+        # CameraInfo samples are no frames: the frame counters know nothing of them.
+        assert rig.service.status()["frames"]["rejected"] == 0
+
+
+def test_camera_info_changes_are_logged_at_most_once_per_interval(
+    endpoint: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="zenoh_perception.service")
+    settings = Settings(
+        camera_info_key="zed/left/camera_info",
+        tag_size_m=0.2,
+        stats_interval_s=0,
+        log_interval_s=60,
+    )
+    with rig_with(settings, endpoint) as rig:
+        info_pub = rig.camera.declare_publisher("zed/left/camera_info")
+        wait_for_subscriber(info_pub)
+        focals = [500.0 + 10.0 * (i % 2) for i in range(10)]  # alternating: ten changes
+        for fx in focals:
+            info_pub.put(_camera_info(fx))
+        wait_until(
+            lambda: rig.service.status()["camera_info"]["received"] == len(focals),
+            what="every CameraInfo sample",
+        )
+        assert rig.service.status()["camera_info"]["intrinsics"]["fx"] == focals[-1]
+    lines = [r.getMessage() for r in caplog.records if "event=intrinsics" in r.getMessage()]
+    assert len(lines) == 1, lines
+
+
+# -- failures on the way out ----------------------------------------------------------------------
+
+
+class _RefusingPublisher:
+    """Stands in for a Zenoh publisher whose every put fails."""
+
+    def put(self, *_args: object, **_kwargs: object) -> None:
+        msg = "simulated put failure"
+        raise zenoh.ZError(msg)
+
+
+def test_a_failed_publication_is_counted_and_the_worker_goes_on(
+    rig: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(rig.service, "_tag_pub", _RefusingPublisher())
+    rig.put_raw(SCENE, seq=1)
+    record = decode_record(rig.records.get(timeout=20).payload)
+    assert record["seq"] == 1 and record["selected"]["tag_id"] == 7
+    wait_until(
+        lambda: rig.service.status()["publish_errors"]["tag"] == 1, what="the failed put counted"
+    )
+    monkeypatch.undo()
+    rig.put_raw(SCENE, seq=2)
+    tag, record = rig.answer()
+    assert tag.tag_id == 7 and record["seq"] == 2
+    status = rig.service.status()
+    assert status["worker_alive"] is True
+    assert status["publish_errors"] == {"tag": 1, "record": 0, "debug_image": 0}
+    assert status["frames"]["processed"] == 2
+
+
+def test_negative_stamps_are_refused_alike_raw_and_cdr(rig: Rig) -> None:
+    rig.put_raw(SCENE, stamp_ns=-1)
+    wait_until(lambda: rig.service.status()["rejected_by_reason"] == {"bad_stamp": 1}, what="raw")
+    rig.put_cdr(SCENE, stamp_ns=-1)
+    wait_until(lambda: rig.service.status()["rejected_by_reason"] == {"bad_stamp": 2}, what="cdr")
+    rig.put_cdr(SCENE, stamp_ns=0)
+    _tag, record = rig.answer()
+    assert record["stamp_ns"] == 0 and record["source"] == "cdr"

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import tomllib
+import typing
 from dataclasses import fields
 from pathlib import Path
 
@@ -12,8 +14,11 @@ import pytest
 
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.settings import (
+    BOUNDS,
+    MAX_SETTINGS_FILE_BYTES,
     Settings,
     add_settings_arguments,
+    check_ros_package,
     load_settings,
     settings_from_args,
     settings_from_mapping,
@@ -101,7 +106,14 @@ def test_invalid_settings_are_rejected(values: dict[str, object]) -> None:
 
 def test_distance_metric_with_intrinsics_and_size_is_accepted() -> None:
     settings = settings_from_mapping(
-        {"metric": "distance", "camera_fx": 500, "camera_fy": 500, "tag_size_m": 0.2}
+        {
+            "metric": "distance",
+            "camera_fx": 500,
+            "camera_fy": 500,
+            "camera_cx": 319.5,
+            "camera_cy": 239.5,
+            "tag_size_m": 0.2,
+        }
     )
     assert settings.has_intrinsics and settings.metric == "distance"
 
@@ -142,3 +154,152 @@ def test_zenoh_flags_build_the_config(tmp_path: Path) -> None:
 def test_bad_zenoh_flags_are_settings_errors(argv: list[str]) -> None:
     with pytest.raises(SettingsError):
         zenoh_config_from_args(_parse(*argv))
+
+
+# -- bounds of every number -----------------------------------------------------------------
+
+
+def _numeric_settings() -> list[str]:
+    hints = typing.get_type_hints(Settings)
+    return [f.name for f in fields(Settings) if hints[f.name] in (int, float)]
+
+
+def test_every_number_has_bounds_documented_above_its_key() -> None:
+    text = CONFIG.read_text()
+    lines = text.splitlines()
+    for name in _numeric_settings():
+        assert name in BOUNDS, name
+        index = next(i for i, line in enumerate(lines) if line.startswith(f"{name} ="))
+        comments: list[str] = []
+        for line in reversed(lines[:index]):
+            if not line.startswith("#"):
+                break
+            comments.append(line)
+        assert BOUNDS[name].describe() in " ".join(comments), name
+
+
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"opencv_threads": 4 * (os.cpu_count() or 1) + 1}, "opencv_threads"),
+        ({"opencv_threads": -1}, "opencv_threads"),
+        ({"stats_interval_s": 0.05}, "stats_interval_s"),
+        ({"stats_interval_s": 86_401}, "stats_interval_s"),
+        ({"stats_interval_s": float("inf")}, "stats_interval_s"),
+        ({"log_interval_s": 0}, "log_interval_s"),
+        ({"log_interval_s": 100_000}, "log_interval_s"),
+        ({"debug_image_max_hz": 5000}, "debug_image_max_hz"),
+        ({"max_range_m": 1e9}, "max_range_m"),
+        ({"tag_size_m": 1000}, "tag_size_m"),
+        ({"min_tag_side_px": 1e6}, "min_tag_side_px"),
+        ({"max_frame_bytes": 100}, "max_frame_bytes"),
+        ({"max_frame_bytes": 2**40}, "max_frame_bytes"),
+        ({"max_frame_pixels": 0}, "max_frame_pixels"),
+        ({"frame_budget_ms": 0}, "frame_budget_ms"),
+        ({"tag_sizes": {"2147483648": 0.2}}, "tag_sizes"),
+        ({"tag_sizes": {"3": 500}}, "tag_sizes"),
+        ({"camera_fx": 1e9, "camera_fy": 1e9, "camera_cx": 320, "camera_cy": 240}, "camera_fx"),
+        ({"camera_fx": 500, "camera_cx": 320, "camera_cy": 240}, "camera_fy"),
+        ({"camera_fx": 500, "camera_fy": 500}, "camera_cx"),  # principal point left at 0
+        ({"camera_fx": 500, "camera_fy": 50, "camera_cx": 320, "camera_cy": 240}, "camera_fx"),
+        ({"camera_cx": 1e6}, "camera_cx"),
+    ],
+)
+def test_numbers_out_of_bounds_are_refused_naming_the_setting(
+    values: dict[str, object], named: str
+) -> None:
+    with pytest.raises(SettingsError, match=named):
+        settings_from_mapping(values)
+
+
+def test_numbers_at_their_bounds_and_zero_where_it_means_off_are_accepted() -> None:
+    settings = settings_from_mapping(
+        {
+            "opencv_threads": 4 * (os.cpu_count() or 1),
+            "stats_interval_s": 0,
+            "log_interval_s": 86_400,
+            "max_frame_bytes": 4 << 30,
+            "max_frame_pixels": 16384 * 16384,
+            "frame_budget_ms": 0.1,
+            "camera_fx": 100_000,
+            "camera_fy": 30_000,
+            "camera_cx": 0.5,
+            "camera_cy": 16383,
+        }
+    )
+    assert settings.stats_interval_s == 0.0
+
+
+# -- keys --------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"tag_key": "perception/*"}, "tag_key"),
+        ({"record_key": "perception/**"}, "record_key"),
+        ({"debug_image_key": "perception/$*debug"}, "debug_image_key"),
+        ({"status_key": "perception/*/status"}, "status_key"),
+        ({"liveliness_key": "perception/*"}, "liveliness_key"),
+        ({"tag_key": "a//b"}, "tag_key"),  # empty chunk
+        ({"input_key": "zed/**/**"}, "input_key"),  # not canonical: no auto-canonisation
+        ({"input_key": "zed/left?"}, "input_key"),
+        ({"record_key": "zed/left/image"}, "record_key"),  # the input itself
+        ({"input_key": "**"}, "tag_key"),  # every output is an input
+        ({"input_key": "perception/*"}, "record_key"),
+        ({"camera_info_key": "perception/**"}, "record_key"),
+        ({"camera_info_key": "zed/**"}, "camera_info_key"),
+        ({"tag_key": "perception/tags"}, "record_key"),  # two outputs on one key
+    ],
+)
+def test_keys_are_validated_naming_the_setting(values: dict[str, object], named: str) -> None:
+    with pytest.raises(SettingsError, match=named):
+        settings_from_mapping(values)
+
+
+def test_input_keys_may_be_key_expressions() -> None:
+    settings = settings_from_mapping(
+        {"input_key": "rover$*/zed/*/image", "camera_info_key": "rover$*/zed/*/camera_info"}
+    )
+    assert settings.input_key == "rover$*/zed/*/image"
+
+
+@pytest.mark.parametrize("name", ["Mrover", "mr-over", "a__b", "_ab", "1abc", "x", "ab_", ""])
+def test_ros_package_must_be_a_ros_package_name(name: str) -> None:
+    with pytest.raises(SettingsError, match="ros_package"):
+        settings_from_mapping({"ros_package": name})
+
+
+def test_ros_package_names_that_ros_accepts() -> None:
+    for name in ("mrover", "my_msgs", "nav2_msgs", "a1"):
+        assert check_ros_package(name) == name
+
+
+# -- the settings file ---------------------------------------------------------------------------
+
+
+def test_a_settings_file_over_1_mib_is_refused_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / "huge.toml"
+    line = "# " + "x" * 1021 + "\n"
+    path.write_text(line * (MAX_SETTINGS_FILE_BYTES // len(line) + 1))
+    with pytest.raises(SettingsError, match=r"huge\.toml is larger than 1048576 bytes"):
+        load_settings(path)
+
+
+def test_a_settings_file_that_is_not_utf8_is_refused_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / "latin1.toml"
+    path.write_bytes('# caf\u00e9\ntag_key = "tag"\n'.encode("latin-1"))
+    with pytest.raises(SettingsError, match=r"latin1\.toml is not UTF-8"):
+        load_settings(path)
+
+
+def test_a_settings_path_that_is_not_a_regular_file_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(SettingsError, match="not a regular file"):
+        load_settings(tmp_path)
+
+
+def test_bad_values_in_the_file_name_the_file_and_the_setting(tmp_path: Path) -> None:
+    path = tmp_path / "bad_value.toml"
+    path.write_text("stats_interval_s = 0.01\n")
+    with pytest.raises(SettingsError, match=r"bad_value\.toml: stats_interval_s must be in"):
+        load_settings(path)

@@ -7,6 +7,9 @@ sensor_msgs/Image CDR with ``--format cdr``). With ``--camera-only`` it only pub
 ``zenoh-perception run`` started elsewhere. With ``--shm`` it puts each frame from a Zenoh
 shared-memory buffer (:class:`~zenoh_perception.shm.ShmPutter`), as a camera on the service's
 machine would.
+
+A frame larger than the settings' ``max_frame_bytes`` is not sent: the demo refuses the
+resolution at start (exit 2, with how to raise the limits), as the service would refuse it.
 """
 
 from __future__ import annotations
@@ -22,11 +25,13 @@ from typing import TextIO
 import zenoh
 
 from zenoh_perception.echo import format_record
-from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.errors import PayloadTooLargeError, SettingsError
+from zenoh_perception.frames import RawFrameMeta, check_payload_size, encode_image_cdr
 from zenoh_perception.scene import RESOLUTIONS, CameraModel, Scene, SceneGenerator
-from zenoh_perception.service import PerceptionService
-from zenoh_perception.settings import Settings
+from zenoh_perception.service import PerceptionService, check_transport_limit
+from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.shm import ShmPutter
+from zenoh_perception.zenoh_args import open_zenoh
 
 DRIVE_SECONDS = 12.0
 
@@ -39,6 +44,23 @@ def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -
         yield from generator.drive(round(DRIVE_SECONDS * fps), fps=fps, speed_mps=0.6)
 
 
+def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:
+    """Refuse (camera side) a frame of ``size`` bytes that the service would refuse.
+
+    Raises:
+        SettingsError: ``size`` exceeds ``max_frame_bytes``; the message says how to raise it.
+
+    """
+    try:
+        check_payload_size(size, max_frame_bytes)
+    except PayloadTooLargeError as err:
+        msg = (
+            f"{what} is {size} bytes, over max_frame_bytes = {max_frame_bytes}: the service "
+            f"would refuse it; {FRAME_LIMITS_HINT}"
+        )
+        raise SettingsError(msg) from err
+
+
 def publish_camera(
     session: zenoh.Session,
     key: str,
@@ -49,9 +71,15 @@ def publish_camera(
     stop: threading.Event,
     limit: int = 0,
     shm: bool = False,
+    max_frame_bytes: int | None = None,
 ) -> int:
     """Publish ``scenes`` at ``fps`` until ``stop`` (or ``limit`` frames); returns frames sent.
-    With ``shm``, frames go from a Zenoh shared-memory buffer (plain puts if unavailable)."""
+    With ``shm``, frames go from a Zenoh shared-memory buffer (plain puts if unavailable).
+
+    Raises:
+        SettingsError: a frame exceeds ``max_frame_bytes`` (None: no limit).
+
+    """
     publisher = session.declare_publisher(key)
     putter = ShmPutter() if shm else None
     period = 1.0 / fps
@@ -71,6 +99,8 @@ def publish_camera(
                 height, width = scene.image.shape[:2]
                 meta = RawFrameMeta(width, height, stamp_ns=stamp_ns, frame_id="demo", seq=seq)
                 payload, attachment = scene.image.tobytes(), meta.to_msgpack()
+            if max_frame_bytes is not None:
+                check_frame_bytes(len(payload), max_frame_bytes, f"demo frame {seq + 1}")
             if putter is None:
                 publisher.put(payload, attachment=attachment)
             else:
@@ -100,10 +130,24 @@ def main(
     stop: threading.Event | None = None,
     out: TextIO = sys.stdout,
 ) -> int:
-    """Run camera (+ service + echo unless ``camera_only``) until ``stop`` or ``limit`` frames."""
+    """Run camera (+ service + echo unless ``camera_only``) until ``stop`` or ``limit`` frames.
+
+    Raises:
+        SettingsError: a frame of ``resolution`` exceeds ``settings.max_frame_bytes``, or that
+            limit exceeds Zenoh's message limit.
+        SessionError: the Zenoh session cannot be opened.
+
+    """
+    if not camera_only:
+        check_transport_limit(conf, settings)
     stop = stop or threading.Event()
+    width, height = RESOLUTIONS[resolution]
+    # Every frame holds at least its BGRA pixels: refuse before anything starts.
+    check_frame_bytes(
+        width * height * 4, settings.max_frame_bytes, f"a {resolution} BGRA demo frame"
+    )
     scenes = drive_forever(resolution, fps, settings.dictionary)
-    with zenoh.open(conf) as session:
+    with open_zenoh(conf) as session:
 
         def camera() -> None:
             publish_camera(
@@ -115,6 +159,7 @@ def main(
                 stop=stop,
                 limit=limit,
                 shm=shm,
+                max_frame_bytes=settings.max_frame_bytes,
             )
 
         if camera_only:

@@ -1,4 +1,11 @@
-"""``zenoh-perception echo``: print what the service publishes (``ros2 topic echo /tag`` here)."""
+"""``zenoh-perception echo``: print what the service publishes (``ros2 topic echo /tag`` here).
+
+Lost records show: echo follows the records' ``seq`` and prints a ``gap`` line whenever
+numbers are missing (a ``seq`` lower than the last one is a restart, not a gap), and on exit
+prints the totals to stderr. The ``seq`` is the camera's frame counter when the camera sends
+one (then frames the service dropped or rejected are missing too), else the service's count of
+answered frames (then only records lost on the way are).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +14,15 @@ import queue
 import sys
 import threading
 import time
-from typing import Any, TextIO
+from dataclasses import dataclass
+from typing import Any, NamedTuple, TextIO
 
 import zenoh
 
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.settings import check_ros_package
+from zenoh_perception.zenoh_args import open_zenoh
 
 
 def format_tag(key: str, payload: bytes, codec: TagCodec, *, as_json: bool) -> str:
@@ -33,8 +43,7 @@ def format_tag(key: str, payload: bytes, codec: TagCodec, *, as_json: bool) -> s
     )
 
 
-def format_record(key: str, payload: bytes, *, as_json: bool) -> str:
-    record = decode_record(payload)
+def _format_decoded_record(key: str, record: dict[str, Any], *, as_json: bool) -> str:
     if as_json:
         return json.dumps({"key": key, **record})
     ids = ",".join(str(tag.get("tag_id")) for tag in record["tags"]) or "-"
@@ -44,6 +53,71 @@ def format_record(key: str, payload: bytes, *, as_json: bool) -> str:
         f"{record['width']}x{record['height']} tags={ids} "
         f"selected={record['selected']['tag_id']} latency_ms={latency:.2f}"
     )
+
+
+def format_record(key: str, payload: bytes, *, as_json: bool) -> str:
+    return _format_decoded_record(key, decode_record(payload), as_json=as_json)
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """Records missing between two consecutive ``seq`` values seen."""
+
+    after: int
+    next: int
+
+    @property
+    def missing(self) -> int:
+        return self.next - self.after - 1
+
+    def format(self, key: str, *, as_json: bool) -> str:
+        if as_json:
+            gap = {"after": self.after, "next": self.next, "missing": self.missing}
+            return json.dumps({"key": key, "gap": gap})
+        return (
+            f"[{key}] gap: {self.missing} record(s) missing between seq {self.after} "
+            f"and {self.next}"
+        )
+
+
+class SeqGaps:
+    """Follows a stream's ``seq`` numbers and counts the gaps in it. Pure, not thread-safe."""
+
+    def __init__(self) -> None:
+        self.records = 0
+        self.gaps = 0
+        self.missing = 0
+        self.restarts = 0
+        self._last: int | None = None
+
+    def observe(self, seq: object) -> Gap | None:
+        """The gap before ``seq``, if any (a seq that is not an integer is ignored)."""
+        if isinstance(seq, bool) or not isinstance(seq, int):
+            return None
+        self.records += 1
+        last, self._last = self._last, seq
+        if last is None:
+            return None
+        if seq <= last:  # the camera or the service started over
+            self.restarts += 1
+            return None
+        if seq == last + 1:
+            return None
+        gap = Gap(last, seq)
+        self.gaps += 1
+        self.missing += gap.missing
+        return gap
+
+    def summary(self) -> str:
+        return (
+            f"records={self.records} gaps={self.gaps} missing={self.missing} "
+            f"restarts={self.restarts}"
+        )
+
+
+class _Line(NamedTuple):
+    text: str
+    counted: bool  # counts toward --count (gap lines do not)
 
 
 def main(
@@ -58,38 +132,59 @@ def main(
     timeout: float | None = None,
     stop: threading.Event | None = None,
     out: TextIO = sys.stdout,
+    err: TextIO = sys.stderr,
 ) -> int:
-    """Print decoded tags (and records) until ``count`` lines, ``timeout`` or ``stop``.
+    """Print decoded tags (and records, with gaps in their ``seq``) until ``count`` lines,
+    ``timeout`` or ``stop``; then the gap totals on ``err`` when records were followed.
 
     Returns 0, or 1 when ``count`` lines did not arrive before ``timeout``.
+
+    Raises:
+        SettingsError: ``ros_package`` is not a ROS package name.
+        SessionError: the Zenoh session cannot be opened.
+
     """
-    codec = TagCodec(ros_package)
-    lines: queue.Queue[str] = queue.Queue()
+    codec = TagCodec(check_ros_package(ros_package))
+    lines: queue.Queue[_Line] = queue.Queue()
     stop = stop or threading.Event()
+    gaps = SeqGaps()
+    gaps_lock = threading.Lock()
 
     def on_tag(sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         try:
-            lines.put(format_tag(key, sample.payload.to_bytes(), codec, as_json=as_json))
-        except MessageDecodeError as err:
-            lines.put(f"[{key}] undecodable: {err}")
+            lines.put(
+                _Line(format_tag(key, sample.payload.to_bytes(), codec, as_json=as_json), True)
+            )
+        except MessageDecodeError as error:
+            lines.put(_Line(f"[{key}] undecodable: {error}", True))
 
     def on_record(sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         try:
-            lines.put(format_record(key, sample.payload.to_bytes(), as_json=as_json))
-        except MessageDecodeError as err:
-            lines.put(f"[{key}] undecodable: {err}")
+            record = decode_record(sample.payload.to_bytes())
+        except MessageDecodeError as error:
+            lines.put(_Line(f"[{key}] undecodable: {error}", True))
+            return
+        with gaps_lock:
+            gap = gaps.observe(record["seq"])
+            if gap is not None:
+                lines.put(_Line(gap.format(key, as_json=as_json), False))
+            lines.put(_Line(_format_decoded_record(key, record, as_json=as_json), True))
 
-    with zenoh.open(conf) as session:
+    with open_zenoh(conf) as session:
         subscribers: list[Any] = [session.declare_subscriber(tag_key, on_tag)]
         if records:
             subscribers.append(session.declare_subscriber(record_key, on_record))
-        return _print_lines(lines, stop, out, count=count, timeout=timeout)
+        code = _print_lines(lines, stop, out, count=count, timeout=timeout)
+    if records:
+        with gaps_lock:
+            print(f"echo: {gaps.summary()}", file=err, flush=True)
+    return code
 
 
 def _print_lines(
-    lines: queue.Queue[str],
+    lines: queue.Queue[_Line],
     stop: threading.Event,
     out: TextIO,
     *,
@@ -106,8 +201,9 @@ def _print_lines(
             line = lines.get(timeout=wait)
         except queue.Empty:
             continue
-        print(line, file=out, flush=True)
-        printed += 1
+        print(line.text, file=out, flush=True)
+        if line.counted:
+            printed += 1
         if count and printed >= count:
             return 0
     return 1 if count and printed < count else 0

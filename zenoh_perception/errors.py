@@ -2,6 +2,8 @@
 
 Every error a network payload can cause derives from :class:`FrameDecodeError` and carries a
 stable ``reason`` string; the service counts rejections by that reason and names it in its log.
+The other errors the service counts at run time (:class:`CameraInfoError`,
+:class:`IntrinsicsError`, :class:`ProcessingError`) carry a ``reason`` too.
 """
 
 from __future__ import annotations
@@ -53,3 +55,48 @@ class SizeMismatchError(FrameDecodeError):
 
 class MessageDecodeError(PerceptionError):
     """An output message (tag CDR or perception record) could not be decoded."""
+
+
+class PayloadTooLargeError(FrameDecodeError):
+    """The frame payload holds more bytes than ``max_frame_bytes`` allows."""
+
+    reason = "payload_too_large"
+
+
+class TooManyPixelsError(FrameDecodeError):
+    """The frame has more pixels than ``max_frame_pixels`` allows."""
+
+    reason = "too_many_pixels"
+
+
+class StampError(FrameDecodeError):
+    """The frame's stamp is negative or beyond what a signed 64-bit nanosecond count holds."""
+
+    reason = "bad_stamp"
+
+
+class CameraInfoError(MessageDecodeError):
+    """The payload is not a well-formed sensor_msgs/msg/CameraInfo CDR sample."""
+
+    reason = "bad_camera_info"
+
+
+class IntrinsicsError(PerceptionError):
+    """Camera intrinsics outside plausible bounds (settings or CameraInfo)."""
+
+    reason = "bad_intrinsics"
+
+
+class ProcessingError(PerceptionError):
+    """A decoded frame could not be turned into its outputs; ``stage`` says where it failed
+    (``detect``, ``encode``, ``debug_image``)."""
+
+    reason = "processing_error"
+
+    def __init__(self, stage: str, detail: object) -> None:
+        super().__init__(f"{stage}: {detail}")
+        self.stage = stage
+
+
+class SessionError(PerceptionError):
+    """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""

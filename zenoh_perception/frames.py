@@ -4,6 +4,11 @@ Both decoders return a :class:`Frame` whose ``pixels`` is a *view* into the payl
 copy): rows may be padded (``step`` larger than ``width * channels``) and are described by numpy
 strides rather than copied away. Every size is checked against the bytes actually present before
 any view is built, so a hostile header can never make us allocate or read past the payload.
+
+Limits: a payload of more than the service's ``max_frame_bytes`` is refused before it is copied
+(:func:`check_payload_size`), a frame of more than ``max_pixels`` pixels before it is viewed, and
+a stamp must lie in [0, :data:`MAX_STAMP_NS`] whether it comes from a raw frame's attachment or
+a CDR header (ROS 2 refuses negative times: rclcpp::Time throws on them).
 """
 
 from __future__ import annotations
@@ -17,11 +22,15 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception import geometry
 from zenoh_perception.errors import (
     AttachmentError,
     DimensionError,
     ImageCdrError,
+    PayloadTooLargeError,
     SizeMismatchError,
+    StampError,
+    TooManyPixelsError,
     UnsupportedEncodingError,
 )
 from zenoh_perception.messages import (
@@ -36,7 +45,11 @@ from zenoh_perception.messages import (
 Pixels = npt.NDArray[np.uint8]
 
 #: Largest accepted width or height. Bigger values are treated as corrupt headers.
-MAX_DIMENSION: Final = 16384
+MAX_DIMENSION: Final = geometry.MAX_DIMENSION
+#: Largest pixel count: what MAX_DIMENSION allows; the service's max_frame_pixels is lower.
+MAX_PIXELS: Final = MAX_DIMENSION * MAX_DIMENSION
+#: Largest accepted stamp, nanoseconds since the epoch (a signed 64-bit count).
+MAX_STAMP_NS: Final = 2**63 - 1
 #: Largest accepted attachment; real ones are well under 200 bytes.
 MAX_ATTACHMENT_BYTES: Final = 4096
 #: Largest accepted frame_id length, in characters.
@@ -154,9 +167,8 @@ def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
     width = _int_field(fields, "width", required=True)
     height = _int_field(fields, "height", required=True)
     stamp_ns = _int_field(fields, "stamp_ns", required=False)
-    if stamp_ns is not None and stamp_ns < 0:
-        msg = "attachment 'stamp_ns' is negative"
-        raise AttachmentError(msg)
+    if stamp_ns is not None:
+        check_stamp(stamp_ns)
     if width is None or height is None:  # pragma: no cover - required=True guarantees ints
         msg = "attachment lacks width or height"
         raise AttachmentError(msg)
@@ -171,6 +183,31 @@ def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
     )
 
 
+def check_stamp(stamp_ns: int) -> int:
+    """``stamp_ns`` itself when it lies in [0, MAX_STAMP_NS].
+
+    Raises:
+        StampError: a negative stamp (before the epoch) or one past a signed 64-bit count.
+
+    """
+    if not 0 <= stamp_ns <= MAX_STAMP_NS:
+        msg = f"stamp {stamp_ns} ns is outside [0, {MAX_STAMP_NS}]"
+        raise StampError(msg)
+    return stamp_ns
+
+
+def check_payload_size(size: int, max_bytes: int) -> None:
+    """Refuse a frame payload of ``size`` bytes when it exceeds ``max_bytes``.
+
+    Raises:
+        PayloadTooLargeError: ``size > max_bytes``.
+
+    """
+    if size > max_bytes:
+        msg = f"frame payload of {size} bytes exceeds max_frame_bytes = {max_bytes}"
+        raise PayloadTooLargeError(msg)
+
+
 def _lookup_encoding(name: str) -> PixelEncoding:
     try:
         return ENCODINGS[name.lower()]
@@ -180,7 +217,13 @@ def _lookup_encoding(name: str) -> PixelEncoding:
 
 
 def pixel_view(
-    buffer: Pixels, width: int, height: int, step: int | None, encoding: PixelEncoding
+    buffer: Pixels,
+    width: int,
+    height: int,
+    step: int | None,
+    encoding: PixelEncoding,
+    *,
+    max_pixels: int = MAX_PIXELS,
 ) -> Pixels:
     """Build a (height, width[, channels]) view over ``buffer`` honouring a row ``step``.
 
@@ -189,6 +232,7 @@ def pixel_view(
     Raises:
         DimensionError: non-positive or absurd width/height, or a step shorter than a row.
         SizeMismatchError: ``buffer`` does not hold exactly ``step * height`` bytes.
+        TooManyPixelsError: a consistent frame of more than ``max_pixels`` pixels.
 
     """
     if not (0 < width <= MAX_DIMENSION and 0 < height <= MAX_DIMENSION):
@@ -203,6 +247,9 @@ def pixel_view(
     if buffer.size != step * height:
         msg = f"{buffer.size} pixel bytes for {width}x{height} {encoding.name} step {step}"
         raise SizeMismatchError(msg)
+    if width * height > max_pixels:
+        msg = f"{width}x{height} = {width * height} pixels exceeds max_frame_pixels = {max_pixels}"
+        raise TooManyPixelsError(msg)
     if encoding.channels == 1:
         shape: tuple[int, ...] = (height, width)
         strides: tuple[int, ...] = (step, 1)
@@ -215,7 +262,12 @@ def pixel_view(
     return view
 
 
-def decode_raw_frame(payload: bytes | memoryview, attachment: bytes | memoryview | None) -> Frame:
+def decode_raw_frame(
+    payload: bytes | memoryview,
+    attachment: bytes | memoryview | None,
+    *,
+    max_pixels: int = MAX_PIXELS,
+) -> Frame:
     """Decode raw pixels described by a msgpack attachment (zero-copy view of ``payload``).
 
     Raises:
@@ -225,11 +277,11 @@ def decode_raw_frame(payload: bytes | memoryview, attachment: bytes | memoryview
     meta = decode_attachment(attachment)
     encoding = _lookup_encoding(meta.encoding)
     buffer = np.frombuffer(payload, dtype=np.uint8)
-    pixels = pixel_view(buffer, meta.width, meta.height, meta.step, encoding)
+    pixels = pixel_view(buffer, meta.width, meta.height, meta.step, encoding, max_pixels=max_pixels)
     return Frame(pixels, encoding, meta.stamp_ns, meta.frame_id, meta.seq)
 
 
-def decode_image_cdr(payload: bytes | memoryview) -> Frame:
+def decode_image_cdr(payload: bytes | memoryview, *, max_pixels: int = MAX_PIXELS) -> Frame:
     """Decode a ROS 2 sensor_msgs/msg/Image CDR sample (with its 4-byte encapsulation header).
 
     ``data`` is a zero-copy view of ``payload`` when ``payload`` is a memoryview or bytes.
@@ -244,9 +296,12 @@ def decode_image_cdr(payload: bytes | memoryview) -> Frame:
     if data.ndim != 1 or data.dtype != np.uint8:  # pragma: no cover - rosbags always gives uint8[]
         text = "Image.data is not a uint8 sequence"
         raise ImageCdrError(text)
-    pixels = pixel_view(data, int(msg.width), int(msg.height), int(msg.step), encoding)
+    stamp_ns = check_stamp(stamp_ns_of(msg.header))
+    pixels = pixel_view(
+        data, int(msg.width), int(msg.height), int(msg.step), encoding, max_pixels=max_pixels
+    )
     frame_id = str(msg.header.frame_id)[:MAX_FRAME_ID_CHARS]
-    return Frame(pixels, encoding, stamp_ns_of(msg.header), frame_id, None)
+    return Frame(pixels, encoding, stamp_ns, frame_id, None)
 
 
 def encode_image_cdr(

@@ -17,11 +17,24 @@ Both are clamped to [0, 1].
 from __future__ import annotations
 
 import math
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.errors import IntrinsicsError
+
 Corners = npt.NDArray[np.floating]
+
+#: Largest frame width or height the service accepts, pixels (bigger values are corrupt
+#: headers); it also bounds every pixel-valued setting.
+MAX_DIMENSION: Final = 16384
+#: Plausible focal lengths, pixels: a fisheye on a tiny sensor is above the lower bound, a
+#: long telephoto lens on the largest accepted frame below the upper one.
+FOCAL_PX_MIN: Final = 1.0
+FOCAL_PX_MAX: Final = 100_000.0
+#: Largest plausible ratio between fx and fy (pixels are not that far from square).
+FOCAL_ASPECT_MAX: Final = 4.0
 
 
 # Plain Python floats: on four points, numpy's per-call cost (np.roll, mean) is 20x the maths,
@@ -82,3 +95,31 @@ def closeness_from_distance(distance_m: float, max_range_m: float) -> float:
 def distance_to_center(x: float, y: float, width: int, height: int) -> float:
     """Euclidean distance in pixels from (x, y) to the image centre."""
     return math.hypot(x - width / 2.0, y - height / 2.0)
+
+
+def check_intrinsics(
+    fx: float, fy: float, cx: float, cy: float, *, width: int = 0, height: int = 0
+) -> None:
+    """Raise :class:`IntrinsicsError` unless the pinhole intrinsics are plausible.
+
+    Plausible: finite; ``fx`` and ``fy`` in [``FOCAL_PX_MIN``, ``FOCAL_PX_MAX``] and within a
+    factor ``FOCAL_ASPECT_MAX`` of each other; the principal point strictly inside the image
+    (``width`` x ``height`` when known, else ``MAX_DIMENSION`` square). A principal point at 0
+    is the value of an unset field, not of a real camera.
+    """
+    values = (fx, fy, cx, cy)
+    if not all(math.isfinite(v) for v in values):
+        msg = f"intrinsics must be finite numbers, not fx={fx} fy={fy} cx={cx} cy={cy}"
+        raise IntrinsicsError(msg)
+    for name, focal in (("fx", fx), ("fy", fy)):
+        if not FOCAL_PX_MIN <= focal <= FOCAL_PX_MAX:
+            msg = f"{name} = {focal} px is outside [{FOCAL_PX_MIN:g}, {FOCAL_PX_MAX:g}]"
+            raise IntrinsicsError(msg)
+    if max(fx, fy) > FOCAL_ASPECT_MAX * min(fx, fy):
+        msg = f"fx = {fx} and fy = {fy} differ by more than a factor {FOCAL_ASPECT_MAX:g}"
+        raise IntrinsicsError(msg)
+    max_x = float(width) if width > 0 else float(MAX_DIMENSION)
+    max_y = float(height) if height > 0 else float(MAX_DIMENSION)
+    if not (0.0 < cx < max_x and 0.0 < cy < max_y):
+        msg = f"principal point ({cx}, {cy}) is not inside the image (0..{max_x:g}, 0..{max_y:g})"
+        raise IntrinsicsError(msg)

@@ -47,9 +47,23 @@ def make_typestore(package: str = DEFAULT_ROS_PACKAGE) -> Typestore:
 TYPESTORE: Final = make_typestore()
 
 
+#: The range of builtin_interfaces/msg/Time (int32 seconds, nanoseconds below one second), in
+#: nanoseconds since the epoch.
+TIME_MIN_NS: Final = -(2**31) * 1_000_000_000
+TIME_MAX_NS: Final = (2**31 - 1) * 1_000_000_000 + 999_999_999
+
+
+def clamp_stamp_ns(stamp_ns: int) -> int:
+    """``stamp_ns`` clamped to what builtin_interfaces/msg/Time can hold (its int32 seconds end
+    in January 2038; a raw frame's stamp may lie beyond)."""
+    return min(max(stamp_ns, TIME_MIN_NS), TIME_MAX_NS)
+
+
 def header(stamp_ns: int, frame_id: str) -> Any:
-    """A std_msgs/Header for ``stamp_ns`` (nanoseconds since the epoch) and ``frame_id``."""
+    """A std_msgs/Header for ``stamp_ns`` (nanoseconds since the epoch, clamped to the range
+    of builtin_interfaces/msg/Time) and ``frame_id``."""
     types = TYPESTORE.types
+    stamp_ns = clamp_stamp_ns(stamp_ns)
     return types["std_msgs/msg/Header"](
         stamp=types["builtin_interfaces/msg/Time"](
             sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000

@@ -19,7 +19,13 @@ from zenoh_perception.geometry import (
     tag_center,
 )
 from zenoh_perception.pose import Intrinsics, estimate_pose
-from zenoh_perception.selection import Policy, TagMessage, TagObservation, selected_message
+from zenoh_perception.selection import (
+    Metric,
+    Policy,
+    TagMessage,
+    TagObservation,
+    selected_message,
+)
 from zenoh_perception.settings import Settings
 
 
@@ -40,7 +46,11 @@ def observe(
     settings: Settings,
     intrinsics: Intrinsics | None = None,
 ) -> TagObservation:
-    """Geometry of one detection: centre, area, closeness and (when possible) pose."""
+    """Geometry of one detection: centre, area, closeness and (when possible) pose.
+
+    With ``metric = "distance"`` the closeness is the pose's distance when there is a pose,
+    else the area closeness; the observation's ``metric`` says which.
+    """
     x, y = tag_center(detection.corners)
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
@@ -49,10 +59,21 @@ def observe(
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:
         return TagObservation(detection.tag_id, x, y, closeness, corners, area)
-    if settings.metric == "distance":
+    metric = Metric.AREA
+    if settings.metric == Metric.DISTANCE:
         closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
+        metric = Metric.DISTANCE
     return TagObservation(
-        detection.tag_id, x, y, closeness, corners, area, pose.distance_m, pose.rvec, pose.tvec
+        detection.tag_id,
+        x,
+        y,
+        closeness,
+        corners,
+        area,
+        pose.distance_m,
+        pose.rvec,
+        pose.tvec,
+        metric,
     )
 
 

@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.errors import CameraInfoError
+from zenoh_perception.geometry import check_intrinsics
 from zenoh_perception.messages import CAMERA_INFO_TYPE, deserialize
 
 
@@ -78,12 +79,16 @@ def decode_camera_info(payload: bytes | memoryview) -> Intrinsics:
     """Intrinsics (K matrix) from a sensor_msgs/msg/CameraInfo CDR sample.
 
     Raises:
-        MessageDecodeError: not a CameraInfo sample, or a K matrix without focal lengths.
+        CameraInfoError: not a CameraInfo sample, or a K matrix that is not 3 x 3.
+        IntrinsicsError: intrinsics outside plausible bounds for the sample's image size
+            (see :func:`~zenoh_perception.geometry.check_intrinsics`).
 
     """
-    msg = deserialize(payload, CAMERA_INFO_TYPE, MessageDecodeError)
+    msg = deserialize(payload, CAMERA_INFO_TYPE, CameraInfoError)
     k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
-    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
-        text = "CameraInfo K has no positive focal lengths"
-        raise MessageDecodeError(text)
-    return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]))
+    if k.size != 9:
+        text = f"CameraInfo K has {k.size} values, not 9"
+        raise CameraInfoError(text)
+    fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
+    check_intrinsics(fx, fy, cx, cy, width=int(msg.width), height=int(msg.height))
+    return Intrinsics(fx, fy, cx, cy)

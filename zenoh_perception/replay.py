@@ -11,6 +11,10 @@ congestion control BLOCK, so a slow link slows the replay instead of dropping fr
 ``--shm`` publishes each frame from a Zenoh shared-memory buffer (:class:`ShmPutter`), as a
 camera on the service's machine would: no copy on put, the service reads the frame in place.
 Without shared memory it falls back to plain puts and says so in the log.
+
+A frame larger than ``--max-frame-bytes`` (the service's ``max_frame_bytes`` default) is not
+sent: the replay stops with exit 2 and says how to raise the limits, rather than feed a
+service that would refuse every such frame.
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ from typing import Final, TextIO
 
 import zenoh
 
+from zenoh_perception.errors import PayloadTooLargeError, SettingsError
+from zenoh_perception.frames import check_payload_size
+from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings, check_bound
 from zenoh_perception.shm import ShmPutter
 from zenoh_perception.signals import stop_on_signals
 from zenoh_perception.sources import (
@@ -40,7 +47,7 @@ from zenoh_perception.sources import (
     SourceFrame,
     open_source,
 )
-from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+from zenoh_perception.zenoh_args import add_zenoh_arguments, open_zenoh, zenoh_config_from_args
 
 log = logging.getLogger("zenoh_perception.replay")
 
@@ -185,6 +192,7 @@ class ReplayOptions:
     subscriber_timeout_s: float | None = None  # None = wait until stopped
     progress: bool = False
     shm: bool = False  # put frames from a Zenoh shared-memory buffer
+    max_frame_bytes: int = Settings().max_frame_bytes  # larger frames stop the replay
 
 
 def _is_matching(publisher: zenoh.Publisher) -> bool:
@@ -239,6 +247,7 @@ def _publish_all(
         frames = source.frames(epoch_ns=time.time_ns(), seq_start=published)
         with closing(frames):
             for frame in frames:
+                _check_frame_size(frame, published + 1, source, options.max_frame_bytes)
                 if not _send(publisher, frame, pacer=pacer, stop=stop, clock=clock, putter=putter):
                     return published
                 published += 1
@@ -250,6 +259,23 @@ def _publish_all(
         if not options.loop or sent_this_pass == 0:
             break
     return published
+
+
+def _check_frame_size(frame: SourceFrame, number: int, source: FrameSource, limit: int) -> None:
+    """Refuse to send a frame the service would refuse for its size.
+
+    Raises:
+        ReplayError: the frame's payload exceeds ``limit`` bytes.
+
+    """
+    try:
+        check_payload_size(len(frame.payload), limit)
+    except PayloadTooLargeError as err:
+        msg = (
+            f"frame {number} of the {source.kind} is {len(frame.payload)} bytes, over "
+            f"max_frame_bytes = {limit}: the service would refuse it; {FRAME_LIMITS_HINT}"
+        )
+        raise ReplayError(msg) from err
 
 
 def _send(
@@ -287,15 +313,16 @@ def main(
     stopped.
 
     Raises:
-        ReplayError: no subscriber matched within ``options.subscriber_timeout_s``, or the source
-            failed while being read.
+        ReplayError: no subscriber matched within ``options.subscriber_timeout_s``, the source
+            failed while being read, or a frame exceeds ``options.max_frame_bytes``.
+        SessionError: the Zenoh session cannot be opened.
 
     """
     total = options.limit or None
     if not options.loop and source.count is not None:
         total = min(total, source.count) if total else source.count
     with (
-        zenoh.open(conf) as session,
+        open_zenoh(conf) as session,
         session.declare_publisher(
             options.key, congestion_control=zenoh.CongestionControl.BLOCK
         ) as publisher,
@@ -359,6 +386,18 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _max_frame_bytes(text: str) -> int:
+    try:
+        value = int(text)
+        check_bound("max_frame_bytes", value)
+    except ValueError as err:
+        msg = f"{text!r} is not an integer"
+        raise argparse.ArgumentTypeError(msg) from err
+    except SettingsError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+    return value
+
+
 def _non_negative_int(text: str) -> int:
     try:
         value = int(text)
@@ -388,6 +427,7 @@ def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> Repla
         subscriber_timeout_s=args.subscriber_timeout,
         progress=stderr_is_tty if args.progress is None else args.progress,
         shm=args.shm,
+        max_frame_bytes=args.max_frame_bytes,
     )
 
 
@@ -464,6 +504,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="put frames from a Zenoh shared-memory buffer, as a camera on the service's "
         "machine would (no copy on put; plain puts, with a warning, where shared memory is "
         "unavailable) (default: off)",
+    )
+    parser.add_argument(
+        "--max-frame-bytes",
+        type=_max_frame_bytes,
+        default=Settings().max_frame_bytes,
+        metavar="N",
+        help="largest frame payload sent, bytes: a larger frame stops the replay (exit 2); "
+        "match the service's max_frame_bytes (default: %(default)s)",
     )
     parser.add_argument(
         "--wait-for-subscriber",

@@ -7,6 +7,11 @@ Policies:
 - ``center``: nearest the image centre (the older convention); ties go to the lower closeness
   metric, then the lower id.
 
+Closeness values from different metrics are not comparable: with ``metric = "distance"`` a tag
+without a pose (no size known for its id, or no intrinsics yet) keeps its ``area`` closeness,
+and ``closest`` ranks every such tag after every tag whose closeness is a distance. Under
+``center`` the same order only breaks ties of the centre distance.
+
 With no detection the selection is :data:`NO_TAG` (id -1, all zeros).
 """
 
@@ -23,6 +28,13 @@ from zenoh_perception.geometry import distance_to_center
 class Policy(StrEnum):
     CLOSEST = "closest"
     CENTER = "center"
+
+
+class Metric(StrEnum):
+    """What a closeness value was computed from (see :mod:`zenoh_perception.geometry`)."""
+
+    AREA = "area"
+    DISTANCE = "distance"
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +64,7 @@ class TagObservation:
     distance_m: float | None = None
     rvec: tuple[float, float, float] | None = field(default=None)
     tvec: tuple[float, float, float] | None = field(default=None)
+    metric: Metric = Metric.AREA  # what ``closeness`` was computed from
 
     def message(self) -> TagMessage:
         return TagMessage(self.tag_id, self.x, self.y, self.closeness)
@@ -67,10 +80,19 @@ def select_tag(
     def centre_offset(tag: TagObservation) -> float:
         return distance_to_center(tag.x, tag.y, width, height)
 
+    def metric_rank(tag: TagObservation) -> int:
+        # A distance (a pose) ranks before an area: the two scales are not comparable.
+        return 0 if tag.metric == Metric.DISTANCE else 1
+
     if policy is Policy.CENTER:
-        return min(tags, key=lambda t: (centre_offset(t), t.closeness, t.tag_id, t.y, t.x))
+        return min(
+            tags,
+            key=lambda t: (centre_offset(t), metric_rank(t), t.closeness, t.tag_id, t.y, t.x),
+        )
     # Last keys (y, x) only make the choice independent of detection order in exact ties.
-    return min(tags, key=lambda t: (t.closeness, centre_offset(t), t.tag_id, t.y, t.x))
+    return min(
+        tags, key=lambda t: (metric_rank(t), t.closeness, centre_offset(t), t.tag_id, t.y, t.x)
+    )
 
 
 def selected_message(

@@ -4,9 +4,17 @@ Threads:
 
 - Zenoh's callback threads only stamp the arrival time and drop the sample into a
   latest-frame-wins mailbox (O(1), no copy, no decoding).
-- One worker thread copies the payload out of Zenoh once, decodes a zero-copy view, runs the
-  pipeline and publishes ``tag`` then the record (and the debug image while it is watched).
+- One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
+  zero-copy view, runs the pipeline and publishes ``tag`` then the record (and the debug image
+  while it is watched).
 - One reporter thread writes the periodic stats line.
+
+Everything the worker does with a sample, up to and including each publication, runs inside
+its error handling: a bad payload is a rejection counted by reason, a failure of the
+pipeline or of an encoder a ``processing_error`` counted by stage (a rejection too when it
+happens before the tag is published), a failed publication a publish error counted by
+output; the worker goes on with the next frame. Every repeating log line goes through one
+rate limit (``log_interval_s``) per event and reason.
 """
 
 from __future__ import annotations
@@ -14,10 +22,11 @@ from __future__ import annotations
 import gc
 import json
 import logging
+import struct
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Any, Final
 
 import cv2
 import zenoh
@@ -25,8 +34,21 @@ import zenoh
 from zenoh_perception import __version__
 from zenoh_perception.debug_image import annotate, encode_compressed_image
 from zenoh_perception.detect.types import Detector
-from zenoh_perception.errors import FrameDecodeError, MessageDecodeError
-from zenoh_perception.frames import Frame, decode_image_cdr, decode_raw_frame, to_bgr
+from zenoh_perception.errors import (
+    CameraInfoError,
+    FrameDecodeError,
+    IntrinsicsError,
+    ProcessingError,
+    SessionError,
+    SettingsError,
+)
+from zenoh_perception.frames import (
+    Frame,
+    check_payload_size,
+    decode_image_cdr,
+    decode_raw_frame,
+    to_bgr,
+)
 from zenoh_perception.logs import kv
 from zenoh_perception.mailbox import LatestMailbox
 from zenoh_perception.pipeline import Analysis, Pipeline
@@ -34,13 +56,25 @@ from zenoh_perception.pose import decode_camera_info
 from zenoh_perception.records import FrameRecord, TagCodec
 from zenoh_perception.settings import Settings
 from zenoh_perception.stats import LogGate, ServiceStats
+from zenoh_perception.zenoh_args import zenoh_error_text
 
 log = logging.getLogger("zenoh_perception.service")
 
 MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
 #: Rejection reason of a decoded frame the pipeline failed on (a detector bug, counted).
-PROCESSING_ERROR = "processing_error"
+PROCESSING_ERROR = ProcessingError.reason
 _POLL_S = 0.1
+#: Zenoh configuration path of the largest message a session accepts.
+MAX_MESSAGE_SIZE_PATH: Final = "transport/link/rx/max_message_size"
+#: Room a frame message needs besides its payload: the attachment (at most 4 KiB), the key
+#: and Zenoh's own headers.
+MESSAGE_OVERHEAD_BYTES: Final = 8192
+
+# What each stage may raise on a frame it cannot handle (OpenCV, rosbags' CDR serialiser,
+# msgpack); anything else is a bug that stops the worker and makes ``run`` exit 1.
+_DETECT_ERRORS: Final = (cv2.error, ValueError)
+_ENCODE_ERRORS: Final = (struct.error, ValueError, OverflowError, TypeError)
+_DEBUG_ERRORS: Final = (cv2.error, struct.error, ValueError, OverflowError)
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,7 +91,7 @@ class PerceptionService:
         self, session: zenoh.Session, settings: Settings, *, detector: Detector | None = None
     ) -> None:
         self.settings = settings
-        self.stats = ServiceStats()
+        self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
         self._session = session
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
@@ -77,10 +111,38 @@ class PerceptionService:
     # -- life cycle -------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Declare publishers, subscribers, the status queryable and the liveliness token."""
+        """Declare publishers, subscribers, the status queryable and the liveliness token.
+
+        Raises:
+            SessionError: Zenoh refused a declaration (e.g. the session is closed).
+
+        """
         if self._started:
             return
         self._started = True
+        try:
+            self._declare()
+        except zenoh.ZError as err:
+            msg = f"cannot declare the service's keys: {zenoh_error_text(err)}"
+            raise SessionError(msg) from err
+        log.info(
+            "event=started %s",
+            kv(
+                version=__version__,
+                zid=self._session.zid(),
+                input=self.settings.input_key,
+                tag=self.settings.tag_key,
+                record=self.settings.record_key,
+                detector=self.settings.detector,
+                dictionary=self.settings.dictionary,
+                policy=self.settings.policy,
+                metric=self.settings.metric,
+                max_frame_bytes=self.settings.max_frame_bytes,
+                max_frame_pixels=self.settings.max_frame_pixels,
+            ),
+        )
+
+    def _declare(self) -> None:
         s, session = self.settings, self._session
         self._tag_pub = session.declare_publisher(
             s.tag_key, encoding=zenoh.Encoding.APPLICATION_CDR, express=True
@@ -111,20 +173,6 @@ class PerceptionService:
             thread.start()
         # Subscribe last: every frame that arrives finds the pipeline ready.
         self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
-        log.info(
-            "event=started %s",
-            kv(
-                version=__version__,
-                zid=session.zid(),
-                input=s.input_key,
-                tag=s.tag_key,
-                record=s.record_key,
-                detector=s.detector,
-                dictionary=s.dictionary,
-                policy=s.policy,
-                metric=s.metric,
-            ),
-        )
 
     def close(self) -> None:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
@@ -158,30 +206,49 @@ class PerceptionService:
             self._debug_watched.set()
         else:
             self._debug_watched.clear()
-        log.info("event=debug_image watched=%s", status.matching)
+        self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
 
     def _on_camera_info(self, sample: zenoh.Sample) -> None:
         try:
             intrinsics = decode_camera_info(sample.payload.to_bytes())
-        except MessageDecodeError as err:
-            self._reject("bad_camera_info", err)
+        except (CameraInfoError, IntrinsicsError) as err:
+            # Counted apart from frames: a bad CameraInfo is no frame, and the intrinsics in
+            # use stay as they were.
+            self.stats.on_camera_info(err.reason)
+            self._log_limited(
+                logging.WARNING,
+                f"camera_info:{err.reason}",
+                "camera_info_rejected",
+                reason=err.reason,
+                detail=err,
+            )
             return
+        self.stats.on_camera_info(None)
         if intrinsics != self._pipeline.intrinsics:
             self._pipeline.intrinsics = intrinsics
-            log.info(
-                "event=intrinsics fx=%.2f fy=%.2f cx=%.2f cy=%.2f",
-                intrinsics.fx,
-                intrinsics.fy,
-                intrinsics.cx,
-                intrinsics.cy,
+            # A camera whose intrinsics change on every message would flood the log: the
+            # line is rate-limited and the status always shows the intrinsics in use.
+            self._log_limited(
+                logging.INFO,
+                "intrinsics",
+                "intrinsics",
+                fx=f"{intrinsics.fx:.2f}",
+                fy=f"{intrinsics.fy:.2f}",
+                cx=f"{intrinsics.cx:.2f}",
+                cy=f"{intrinsics.cy:.2f}",
             )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
-        query.reply(
-            self.settings.status_key,
-            json.dumps(self.status()),
-            encoding=zenoh.Encoding.APPLICATION_JSON,
-        )
+        try:
+            query.reply(
+                self.settings.status_key,
+                json.dumps(self.status()),
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+            )
+        except zenoh.ZError as err:  # the querier or the session went away
+            self._log_limited(
+                logging.DEBUG, "status_reply", "status_reply_failed", error=zenoh_error_text(err)
+            )
 
     # -- worker ------------------------------------------------------------------------------
 
@@ -199,31 +266,51 @@ class PerceptionService:
                 self.failed.set()
 
     def _handle(self, arrival: _Arrival) -> None:
-        started = time.monotonic_ns()
-        sample = arrival.sample
-        payload = sample.payload.to_bytes()
-        attachment = sample.attachment
         try:
-            if attachment is not None:
-                frame = decode_raw_frame(payload, attachment.to_bytes())
-                source = "raw"
-            else:
-                frame = decode_image_cdr(payload)
-                source = "cdr"
+            self._process(arrival)
         except FrameDecodeError as err:
             self._reject(err.reason, err)
-            return
+        except ProcessingError as err:
+            # Failed before the tag was published: the frame is rejected.
+            self.stats.on_processing_error(err.stage)
+            self._reject(err.reason, err)
+
+    def _process(self, arrival: _Arrival) -> None:
+        """Decode, analyse and publish one frame.
+
+        Raises:
+            FrameDecodeError: the payload is refused (its ``reason`` is counted).
+            ProcessingError: the frame could not be analysed or its tag encoded.
+
+        """
+        started = time.monotonic_ns()
+        s = self.settings
+        sample = arrival.sample
+        # The size is known before the one copy out of Zenoh: an oversized frame costs nothing.
+        check_payload_size(len(sample.payload), s.max_frame_bytes)
+        payload = sample.payload.to_bytes()
+        attachment = sample.attachment
+        if attachment is not None:
+            frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
+            source = "raw"
+        else:
+            frame = decode_image_cdr(payload, max_pixels=s.max_frame_pixels)
+            source = "cdr"
         decoded = time.monotonic_ns()
         try:
             analysis = self._pipeline.process(frame)
-        except (cv2.error, ValueError) as err:
+        except _DETECT_ERRORS as err:
             # A detector failing on one (valid) frame must not kill the worker: status and
             # liveliness would still say "alive" while no frame is ever answered again.
-            self._reject(PROCESSING_ERROR, err)
-            return
-        self._tag_pub.put(bytes(self._codec.encode(analysis.selected)))
+            raise ProcessingError("detect", err) from err
+        try:
+            tag = bytes(self._codec.encode(analysis.selected))
+        except _ENCODE_ERRORS as err:
+            raise ProcessingError("encode_tag", err) from err
+        self._publish(self._tag_pub, "tag", tag)
         published = time.monotonic_ns()
         latency_ms = (published - arrival.received_ns) / 1e6
+        decode_ms = (decoded - started) / 1e6
         self._seq += 1
         record = FrameRecord(
             stamp_ns=frame.stamp_ns if frame.stamp_ns is not None else arrival.wall_ns,
@@ -236,18 +323,35 @@ class PerceptionService:
             timing_ms={
                 "latency_ms": latency_ms,
                 "queue_ms": (started - arrival.received_ns) / 1e6,
-                "decode_ms": (decoded - started) / 1e6,
+                "decode_ms": decode_ms,
                 "convert_ms": analysis.convert_ms,
                 "detect_ms": analysis.detect_ms,
             },
             source=source,
         )
-        self._record_pub.put(record.to_msgpack())
-        self.stats.on_processed(latency_ms)
+        # From here on the frame is answered: later failures are counted, not rejections.
+        try:
+            self._publish(self._record_pub, "record", record.to_msgpack())
+        except _ENCODE_ERRORS as err:
+            self._processing_failed(ProcessingError("encode_record", err))
+        self.stats.on_processed(
+            latency_ms,
+            frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
+            detect_ms=analysis.detect_ms,
+        )
         if self._debug_watched.is_set():
-            self._publish_debug(frame, analysis, record.stamp_ns)
+            try:
+                self._publish_debug(frame, analysis, record.stamp_ns)
+            except ProcessingError as err:
+                self._processing_failed(err)
 
     def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
+        """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
+
+        Raises:
+            ProcessingError: drawing or encoding failed (stage ``debug_image``).
+
+        """
         now = time.monotonic()
         if (
             self._debug_pub is None
@@ -255,9 +359,9 @@ class PerceptionService:
         ):
             return
         self._last_debug = now
-        image = annotate(to_bgr(frame), analysis.tags, analysis.selected)
-        self._debug_pub.put(
-            bytes(
+        try:
+            image = annotate(to_bgr(frame), analysis.tags, analysis.selected)
+            payload = bytes(
                 encode_compressed_image(
                     image,
                     quality=self.settings.debug_jpeg_quality,
@@ -265,8 +369,36 @@ class PerceptionService:
                     frame_id=frame.frame_id,
                 )
             )
+        except _DEBUG_ERRORS as err:
+            raise ProcessingError("debug_image", err) from err
+        if self._publish(self._debug_pub, "debug_image", payload):
+            self._debug_images += 1
+
+    def _publish(self, publisher: zenoh.Publisher, output: str, payload: bytes) -> bool:
+        """Put ``payload``; a failure is counted by ``output`` and logged (rate-limited)."""
+        try:
+            publisher.put(payload)
+        except zenoh.ZError as err:
+            self.stats.on_publish_error(output)
+            self._log_limited(
+                logging.WARNING,
+                f"publish:{output}",
+                "publish_failed",
+                output=output,
+                error=zenoh_error_text(err),
+            )
+            return False
+        return True
+
+    def _processing_failed(self, err: ProcessingError) -> None:
+        self.stats.on_processing_error(err.stage)
+        self._log_limited(
+            logging.WARNING,
+            f"processing:{err.stage}",
+            "processing_error",
+            stage=err.stage,
+            detail=err,
         )
-        self._debug_images += 1
 
     def _reject(self, reason: str, err: Exception) -> None:
         self.stats.on_rejected(reason)
@@ -274,11 +406,20 @@ class PerceptionService:
         if suppressed is not None:
             log.warning("event=rejected %s", kv(reason=reason, suppressed=suppressed, detail=err))
 
+    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
+        """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
+        lines were left out since the last one."""
+        suppressed = self._gate.admit(key)
+        if suppressed is not None:
+            log.log(level, "event=%s %s", event, kv(**fields, suppressed=suppressed))
+
     # -- observability -----------------------------------------------------------------------
 
     def status(self) -> dict[str, Any]:
         """The JSON-ready status: counters, rates, latency and the effective settings."""
         snapshot = self.stats.snapshot().as_dict()
+        intrinsics = self._pipeline.intrinsics
+        snapshot["camera_info"]["intrinsics"] = None if intrinsics is None else asdict(intrinsics)
         return {
             "service": "zenoh-perception",
             "version": __version__,
@@ -300,9 +441,11 @@ class PerceptionService:
             status = self.status()
             frames = status["frames"]
             latency = status["latency_ms"]
+            budget = status["budget"]
             log.info(
                 "event=stats received=%d processed=%d dropped=%d rejected=%d fps=%.1f "
-                "latency_p50_ms=%.2f latency_p99_ms=%.2f",
+                "latency_p50_ms=%.2f latency_p99_ms=%.2f over_budget=%d detect_ms_max=%.2f "
+                "publish_errors=%d processing_errors=%d",
                 frames["received"],
                 frames["processed"],
                 frames["dropped"],
@@ -310,37 +453,81 @@ class PerceptionService:
                 status["fps"],
                 latency["p50"],
                 latency["p99"],
+                budget["over_budget"],
+                budget["detect_ms_max"],
+                sum(status["publish_errors"].values()),
+                sum(status["processing_errors"].values()),
             )
 
 
 def open_session(
-    conf: zenoh.Config, stop: threading.Event, retry_s: float = 1.0
+    conf: zenoh.Config, stop: threading.Event, retry_s: float = 1.0, log_interval_s: float = 5.0
 ) -> zenoh.Session | None:
-    """``zenoh.open(conf)``; in client mode retried every ``retry_s`` until the router is up.
+    """``zenoh.open(conf)``; in client mode retried every ``retry_s`` until the router is up
+    (the retry line is logged at most once per ``log_interval_s``).
 
-    Returns None when ``stop`` is set while waiting. Peer and router modes fail at once.
+    Returns None when ``stop`` is set while waiting.
+
+    Raises:
+        SessionError: peer and router modes, at once (e.g. a listen port in use).
+
     """
     client = json.loads(conf.get_json("mode") or "null") == "client"
+    gate = LogGate(log_interval_s)
     while not stop.is_set():
         try:
             return zenoh.open(conf)
         except zenoh.ZError as err:
+            text = zenoh_error_text(err)
             if not client:
-                raise
-            log.warning("event=connect_failed %s", kv(retry_s=retry_s, error=err))
+                msg = f"cannot open the Zenoh session: {text}"
+                raise SessionError(msg) from err
+            suppressed = gate.admit("connect_failed")
+            if suppressed is not None:
+                fields = kv(retry_s=retry_s, suppressed=suppressed, error=text)
+                log.warning("event=connect_failed %s", fields)
             stop.wait(retry_s)
     return None
 
 
+def check_transport_limit(conf: zenoh.Config, settings: Settings) -> None:
+    """Refuse a ``max_frame_bytes`` that the session's own message limit would drop.
+
+    Raises:
+        SettingsError: ``max_frame_bytes`` plus the message overhead exceeds Zenoh's
+            ``transport/link/rx/max_message_size``.
+
+    """
+    try:
+        limit = int(json.loads(conf.get_json(MAX_MESSAGE_SIZE_PATH)))
+    except (zenoh.ZError, ValueError, TypeError):
+        return  # a Zenoh without that setting: nothing to compare with
+    if settings.max_frame_bytes + MESSAGE_OVERHEAD_BYTES > limit:
+        msg = (
+            f"max_frame_bytes = {settings.max_frame_bytes} does not fit Zenoh's "
+            f"{MAX_MESSAGE_SIZE_PATH} = {limit} (a frame message needs "
+            f"{MESSAGE_OVERHEAD_BYTES} bytes more): lower max_frame_bytes or raise it with "
+            f"--cfg '{MAX_MESSAGE_SIZE_PATH}:N' here and on every router in between"
+        )
+        raise SettingsError(msg)
+
+
 def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
-    """Serve until ``stop`` is set (exit code 0) or the worker dies (exit code 1)."""
-    session = open_session(conf, stop)
+    """Serve until ``stop`` is set (exit code 0) or the worker dies (exit code 1).
+
+    Raises:
+        SettingsError: ``max_frame_bytes`` exceeds the Zenoh configuration's message limit.
+        SessionError: the Zenoh session cannot be opened or the service's keys declared.
+
+    """
+    check_transport_limit(conf, settings)
+    session = open_session(conf, stop, log_interval_s=settings.log_interval_s)
     if session is None:
         return 0
     with session, PerceptionService(session, settings) as service:
         # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives as
         # long as the process: out of the collector's way. A full collection that scans it
-        # takes 12-15 ms, which at 60 Hz stalls a frame until the next one replaces another.
+        # stalls a frame until the next one replaces another.
         gc.freeze()
         while not stop.wait(0.5):
             if service.failed.is_set():

@@ -3,24 +3,64 @@
 The documented file is ``config/perception.toml``; every field below is a key there and a flag
 of ``zenoh-perception run`` (``tag_key`` -> ``--tag-key``). Zenoh's own configuration (mode,
 endpoints, TLS, ...) is not here: it comes from the Zenoh flags and ``-c`` JSON5 file.
+
+Validation (every failure is a :class:`SettingsError` naming the setting; the CLI exits 2):
+
+- every number lies within its documented bounds (:data:`BOUNDS`);
+- keys are Zenoh key expressions as written (no auto-canonisation); the inputs
+  (``input_key``, ``camera_info_key``) may hold wildcards, every key the service publishes,
+  serves or declares on must be concrete, and no output may intersect an input;
+- ``ros_package`` is a valid ROS package name;
+- intrinsics, when given, are plausible (:func:`~zenoh_perception.geometry.check_intrinsics`);
+- the settings file is a regular UTF-8 file of at most :data:`MAX_SETTINGS_FILE_BYTES`.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
+import re
+import stat
 import tomllib
 import typing
 from collections.abc import Mapping, Sequence
 from dataclasses import MISSING, Field, asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
+
+import zenoh
 
 from zenoh_perception.detect.types import DETECTORS, dictionary_name
-from zenoh_perception.errors import SettingsError
-from zenoh_perception.selection import Policy
+from zenoh_perception.errors import IntrinsicsError, SettingsError
+from zenoh_perception.geometry import (
+    FOCAL_PX_MAX,
+    FOCAL_PX_MIN,
+    MAX_DIMENSION,
+    check_intrinsics,
+)
+from zenoh_perception.selection import Metric, Policy
+from zenoh_perception.zenoh_args import zenoh_error_text
 
-METRICS = ("area", "distance")
+METRICS = tuple(Metric)
+
+#: Largest settings file read, bytes.
+MAX_SETTINGS_FILE_BYTES: Final = 1 << 20
+#: Default largest frame payload: far below Zenoh's default message limit
+#: (transport/link/rx/max_message_size, 1 GiB), above any camera frame up to 4K BGRA.
+DEFAULT_MAX_FRAME_BYTES: Final = 64 << 20
+#: How to let larger frames through, for the messages of every tool that refuses one.
+FRAME_LIMITS_HINT: Final = (
+    "raise max_frame_bytes (--max-frame-bytes) on the camera side and at the service alike, "
+    "and beyond 1 GiB also Zenoh's transport/link/rx/max_message_size on every receiver "
+    "(see docs/robustness.md)"
+)
+#: Most entries of ``tag_sizes``, and the largest id (the tag message's id is an int32).
+MAX_TAG_SIZES: Final = 1024
+MAX_TAG_ID: Final = 2**31 - 1
+#: ROS 2 package names (REP 144): lower-case letters, digits and single underscores, starting
+#: with a letter, at least two characters.
+_ROS_PACKAGE: Final = re.compile(r"[a-z][a-z0-9]*(?:_[a-z0-9]+)*")
 
 TagSizes = tuple[tuple[int, float], ...]
 
@@ -70,6 +110,19 @@ class Settings:
         default=0.0,
         metadata=_doc("drop tags whose mean side is shorter than this, pixels; 0 = off"),
     )
+    # Limits and budget
+    max_frame_bytes: int = field(
+        default=DEFAULT_MAX_FRAME_BYTES,
+        metadata=_doc("largest frame payload, bytes; larger ones are refused before any copy"),
+    )
+    max_frame_pixels: int = field(
+        default=4096 * 4096,
+        metadata=_doc("largest frame, pixels (width x height); larger ones are refused"),
+    )
+    frame_budget_ms: float = field(
+        default=100.0,
+        metadata=_doc("frames whose decode + convert + detect take longer are counted over budget"),
+    )
     # Selection and closeness
     policy: str = field(default="closest", metadata=_doc("tag selection: closest | center"))
     metric: str = field(default="area", metadata=_doc("closeness metric: area | distance"))
@@ -98,7 +151,7 @@ class Settings:
         default=5.0, metadata=_doc("period of the info log line; 0 = off")
     )
     log_interval_s: float = field(
-        default=5.0, metadata=_doc("at most one warning per rejection reason per interval")
+        default=5.0, metadata=_doc("at most one line per repeating event (and reason) per interval")
     )
 
     def __post_init__(self) -> None:
@@ -122,11 +175,164 @@ class Settings:
         return data
 
 
-def _validate(settings: Settings) -> None:
-    for name in ("input_key", "tag_key", "record_key", "status_key", "liveliness_key"):
+@dataclass(frozen=True, slots=True)
+class Bound:
+    """The values a numeric setting accepts: [``low``, ``high``], and 0 when ``zero`` says
+    what 0 means there (``off``, ``unknown``)."""
+
+    low: float
+    high: float
+    zero: str | None = None
+    text: str | None = None  # how the bounds read when ``high`` depends on the machine
+
+    def admits(self, value: float) -> bool:
+        if not math.isfinite(value):
+            return False
+        return (self.zero is not None and value == 0) or self.low <= value <= self.high
+
+    def describe(self) -> str:
+        text = self.text or f"[{_number(self.low)}, {_number(self.high)}]"
+        return text if self.zero is None else f"{text}, or 0 = {self.zero}"
+
+
+def _number(value: float) -> str:
+    """``value`` as written in the documentation: whole numbers without a decimal point."""
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+def _cpu_count() -> int:
+    return os.cpu_count() or 1
+
+
+#: The bounds of every numeric setting (``config/perception.toml`` states them too).
+BOUNDS: Final[Mapping[str, Bound]] = {
+    "full_scan_period": Bound(1, 1000),
+    "opencv_threads": Bound(0, 4 * _cpu_count(), text="[0, 4 x CPU cores]"),
+    "min_tag_side_px": Bound(0, MAX_DIMENSION),
+    "max_frame_bytes": Bound(1024, 4 << 30),
+    "max_frame_pixels": Bound(1, MAX_DIMENSION * MAX_DIMENSION),
+    "frame_budget_ms": Bound(0.1, 60_000),
+    "max_range_m": Bound(0.01, 10_000),
+    "tag_size_m": Bound(0.001, 100, zero="unknown"),
+    "camera_fx": Bound(FOCAL_PX_MIN, FOCAL_PX_MAX, zero="unknown"),
+    "camera_fy": Bound(FOCAL_PX_MIN, FOCAL_PX_MAX, zero="unknown"),
+    "camera_cx": Bound(0, MAX_DIMENSION),
+    "camera_cy": Bound(0, MAX_DIMENSION),
+    "debug_image_max_hz": Bound(0.01, 1000),
+    "debug_jpeg_quality": Bound(1, 100),
+    "stats_interval_s": Bound(0.1, 86_400, zero="off"),
+    "log_interval_s": Bound(0.1, 86_400),
+}
+#: Sizes in ``tag_sizes``, metres.
+TAG_SIZE_BOUND: Final = Bound(0.001, 100)
+
+
+def check_bound(name: str, value: float) -> None:
+    """Raise :class:`SettingsError` unless ``value`` is within the bounds of setting ``name``."""
+    bound = BOUNDS[name]
+    if not bound.admits(value):
+        msg = f"{name} must be in {bound.describe()}, not {value!r}"
+        raise SettingsError(msg)
+
+
+def check_ros_package(name: str) -> str:
+    """``name`` when it is a valid ROS 2 package name (REP 144), else SettingsError."""
+    if len(name) < 2 or not _ROS_PACKAGE.fullmatch(name):
+        msg = (
+            f"ros_package {name!r} is not a ROS package name (lower-case letters, digits and "
+            "single underscores, starting with a letter, at least 2 characters)"
+        )
+        raise SettingsError(msg)
+    return name
+
+
+#: Keys the service subscribes to: key expressions (wildcards allowed).
+_INPUT_KEYS: Final = ("input_key", "camera_info_key")
+#: Keys the service publishes on or serves: concrete, never intersecting an input.
+_OUTPUT_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "status_key")
+
+
+def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
+    try:
+        return zenoh.KeyExpr(value)  # as written: no auto-canonisation
+    except zenoh.ZError as err:
+        msg = f"{name} = {value!r} is not a valid Zenoh key expression: {zenoh_error_text(err)}"
+        raise SettingsError(msg) from err
+
+
+def _validate_keys(settings: Settings) -> None:
+    for name in ("input_key", *_OUTPUT_KEYS, "liveliness_key"):
         if not getattr(settings, name):
             msg = f"{name} must not be empty"
             raise SettingsError(msg)
+    inputs = {
+        name: _key_expr(name, getattr(settings, name))
+        for name in _INPUT_KEYS
+        if getattr(settings, name)
+    }
+    outputs: dict[str, zenoh.KeyExpr] = {}
+    for name in (*_OUTPUT_KEYS, "liveliness_key"):
+        value = getattr(settings, name)
+        key = _key_expr(name, value)
+        if "*" in value:
+            msg = (
+                f"{name} = {value!r} must be a concrete key (no '*', '**' or '$*'): "
+                "the service publishes or declares on it"
+            )
+            raise SettingsError(msg)
+        outputs[name] = key
+    if "camera_info_key" in inputs and inputs["input_key"].intersects(inputs["camera_info_key"]):
+        msg = (
+            f"camera_info_key = {settings.camera_info_key!r} intersects input_key = "
+            f"{settings.input_key!r}: frames and CameraInfo would be mixed"
+        )
+        raise SettingsError(msg)
+    for out_name in _OUTPUT_KEYS:
+        for in_name, in_key in inputs.items():
+            if outputs[out_name].intersects(in_key):
+                msg = (
+                    f"{out_name} = {getattr(settings, out_name)!r} intersects {in_name} = "
+                    f"{getattr(settings, in_name)!r}: the service would receive what it sends"
+                )
+                raise SettingsError(msg)
+    seen: dict[str, str] = {}
+    for name in _OUTPUT_KEYS:
+        value = getattr(settings, name)
+        if value in seen:
+            msg = f"{name} and {seen[value]} are both {value!r}: each output needs its own key"
+            raise SettingsError(msg)
+        seen[value] = name
+
+
+def _validate_numbers(settings: Settings) -> None:
+    for name in BOUNDS:
+        check_bound(name, getattr(settings, name))
+    if len(settings.tag_sizes) > MAX_TAG_SIZES:
+        msg = f"tag_sizes has {len(settings.tag_sizes)} entries, at most {MAX_TAG_SIZES}"
+        raise SettingsError(msg)
+    for tag_id, size in settings.tag_sizes:
+        if not 0 <= tag_id <= MAX_TAG_ID or not TAG_SIZE_BOUND.admits(size):
+            msg = (
+                f"tag_sizes entry {tag_id}={size} needs an id in [0, {MAX_TAG_ID}] and a size "
+                f"in {TAG_SIZE_BOUND.describe()} m"
+            )
+            raise SettingsError(msg)
+
+
+def _validate_intrinsics(settings: Settings) -> None:
+    fx, fy, cx, cy = settings.camera_fx, settings.camera_fy, settings.camera_cx, settings.camera_cy
+    if fx == 0 and fy == 0:
+        return
+    try:
+        check_intrinsics(fx, fy, cx, cy)
+    except IntrinsicsError as err:
+        msg = f"camera_fx, camera_fy, camera_cx, camera_cy: {err}"
+        raise SettingsError(msg) from err
+
+
+def _validate(settings: Settings) -> None:
+    _validate_keys(settings)
+    check_ros_package(settings.ros_package)
     if settings.policy not in tuple(Policy):
         msg = f"policy must be one of {', '.join(Policy)}, not {settings.policy!r}"
         raise SettingsError(msg)
@@ -137,38 +343,8 @@ def _validate(settings: Settings) -> None:
         msg = f"detector must be one of {', '.join(DETECTORS)}, not {settings.detector!r}"
         raise SettingsError(msg)
     dictionary_name(settings.dictionary)
-    positive = ("max_range_m", "debug_image_max_hz")
-    non_negative = (
-        "min_tag_side_px",
-        "tag_size_m",
-        "camera_fx",
-        "camera_fy",
-        "camera_cx",
-        "camera_cy",
-        "stats_interval_s",
-        "log_interval_s",
-        "opencv_threads",
-    )
-    for name in positive:
-        value = getattr(settings, name)
-        if not math.isfinite(value) or value <= 0:
-            msg = f"{name} must be a positive number, not {value!r}"
-            raise SettingsError(msg)
-    for name in non_negative:
-        value = getattr(settings, name)
-        if not math.isfinite(value) or value < 0:
-            msg = f"{name} must be zero or positive, not {value!r}"
-            raise SettingsError(msg)
-    if not 1 <= settings.full_scan_period <= 1000:
-        msg = f"full_scan_period must be 1..1000, not {settings.full_scan_period}"
-        raise SettingsError(msg)
-    if not 1 <= settings.debug_jpeg_quality <= 100:
-        msg = f"debug_jpeg_quality must be 1..100, not {settings.debug_jpeg_quality}"
-        raise SettingsError(msg)
-    for tag_id, size in settings.tag_sizes:
-        if tag_id < 0 or not math.isfinite(size) or size <= 0:
-            msg = f"tag_sizes entry {tag_id}={size} needs an id >= 0 and a size > 0"
-            raise SettingsError(msg)
+    _validate_numbers(settings)
+    _validate_intrinsics(settings)
     if (
         settings.metric == "distance"
         and not (settings.has_intrinsics and (settings.tag_size_m > 0 or settings.tag_sizes))
@@ -244,25 +420,66 @@ def settings_from_mapping(
     if unknown:
         msg = f"{source}: unknown setting(s) {', '.join(unknown)}"
         raise SettingsError(msg)
-    coerced = {name: _coerce(known[name], value) for name, value in values.items()}
-    return replace(base if base is not None else Settings(), **coerced)  # type: ignore[arg-type]
+    try:
+        coerced = {name: _coerce(known[name], value) for name, value in values.items()}
+        return replace(base if base is not None else Settings(), **coerced)  # type: ignore[arg-type]
+    except SettingsError as err:
+        msg = f"{source}: {err}"
+        raise SettingsError(msg) from err
+
+
+def _read_settings_file(path: Path) -> dict[str, Any]:
+    """The TOML table of ``path``: a regular file of at most MAX_SETTINGS_FILE_BYTES, UTF-8.
+
+    Opened without blocking (a FIFO must not hang start-up) and checked on the open file, so
+    the file read is the file checked.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as err:
+        msg = f"cannot read settings file {path}: {err.strerror or err}"
+        raise SettingsError(msg) from err
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            msg = f"settings file {path} is not a regular file"
+            raise SettingsError(msg)
+        data = b""
+        while len(data) <= MAX_SETTINGS_FILE_BYTES:
+            chunk = os.read(fd, MAX_SETTINGS_FILE_BYTES + 1 - len(data))
+            if not chunk:
+                break
+            data += chunk
+    except OSError as err:
+        msg = f"cannot read settings file {path}: {err.strerror or err}"
+        raise SettingsError(msg) from err
+    finally:
+        os.close(fd)
+    if len(data) > MAX_SETTINGS_FILE_BYTES:
+        msg = f"settings file {path} is larger than {MAX_SETTINGS_FILE_BYTES} bytes"
+        raise SettingsError(msg)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        msg = f"settings file {path} is not UTF-8 text: {err}"
+        raise SettingsError(msg) from err
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        msg = f"cannot read settings file {path}: {err}"
+        raise SettingsError(msg) from err
 
 
 def load_settings(path: Path | None, overrides: Mapping[str, object] | None = None) -> Settings:
     """Defaults, then the TOML file at ``path`` (if any), then ``overrides``.
 
     Raises:
-        SettingsError: unreadable file, bad TOML, unknown key, wrong type or invalid value.
+        SettingsError: unreadable file (missing, not a regular file, over 1 MiB, not UTF-8),
+            bad TOML, unknown key, wrong type or invalid value.
 
     """
     settings = Settings()
     if path is not None:
-        try:
-            with path.open("rb") as stream:
-                data = tomllib.load(stream)
-        except (OSError, tomllib.TOMLDecodeError) as err:
-            msg = f"cannot read settings file {path}: {err}"
-            raise SettingsError(msg) from err
+        data = _read_settings_file(path)
         settings = settings_from_mapping(data, settings, source=str(path))
     if overrides:
         settings = settings_from_mapping(overrides, settings, source="flags")
@@ -284,7 +501,9 @@ def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
         flag = "--" + f.name.replace("_", "-")
         kind = _field_kind(f)
         default = f.default if f.default is not MISSING else None
-        help_text = f"{f.metadata.get('help', '')} (default: {default!r})"
+        bound = BOUNDS.get(f.name)
+        limits = f"; {bound.describe()}" if bound is not None else ""
+        help_text = f"{f.metadata.get('help', '')}{limits} (default: {default!r})"
         if kind is bool:
             group.add_argument(
                 flag,
@@ -320,10 +539,15 @@ def setting_names() -> Sequence[str]:
 
 
 __all__ = [
+    "BOUNDS",
     "DETECTORS",
+    "FRAME_LIMITS_HINT",
     "METRICS",
+    "Bound",
     "Settings",
     "add_settings_arguments",
+    "check_bound",
+    "check_ros_package",
     "load_settings",
     "setting_names",
     "settings_from_args",

@@ -6,10 +6,15 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Final
 
 import numpy as np
+
+#: Outputs whose publication failures are counted (see ``ServiceStats.on_publish_error``).
+OUTPUTS: Final = ("tag", "record", "debug_image")
+#: Wall-time window of the frame rate, seconds.
+FPS_WINDOW_S: Final = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -23,6 +28,14 @@ class StatsSnapshot:
     latency_p50_ms: float
     latency_p99_ms: float
     latency_mean_ms: float
+    frame_budget_ms: float | None = None
+    over_budget: int = 0
+    frame_ms_max: float = 0.0
+    detect_ms_max: float = 0.0
+    publish_errors: dict[str, int] = field(default_factory=dict)
+    processing_errors: dict[str, int] = field(default_factory=dict)
+    camera_info_received: int = 0
+    camera_info_rejected: dict[str, int] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -40,22 +53,57 @@ class StatsSnapshot:
                 "p99": round(self.latency_p99_ms, 3),
                 "mean": round(self.latency_mean_ms, 3),
             },
+            "budget": {
+                "frame_budget_ms": self.frame_budget_ms,
+                "over_budget": self.over_budget,
+                "frame_ms_max": round(self.frame_ms_max, 3),
+                "detect_ms_max": round(self.detect_ms_max, 3),
+            },
+            "publish_errors": {name: self.publish_errors.get(name, 0) for name in OUTPUTS},
+            "processing_errors": dict(self.processing_errors),
+            "camera_info": {
+                "received": self.camera_info_received,
+                "rejected_by_reason": dict(self.camera_info_rejected),
+            },
         }
 
 
 class ServiceStats:
-    """Counts frames and keeps the latencies of the last ``window`` processed frames."""
+    """Counts frames and keeps the latencies of the last ``window`` processed frames.
 
-    def __init__(self, window: int = 1000, clock: Callable[[], float] = time.monotonic) -> None:
+    ``fps`` is frames over wall time: the frames finished within the last ``fps_window_s``
+    seconds divided by that window (or by the uptime while it is shorter). A frame whose own
+    time (decode, convert, detect) exceeds ``frame_budget_ms`` (None: no budget) counts as
+    over budget.
+    """
+
+    def __init__(
+        self,
+        window: int = 1000,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        frame_budget_ms: float | None = None,
+        fps_window_s: float = FPS_WINDOW_S,
+    ) -> None:
         self._lock = threading.Lock()
         self._clock = clock
         self._start = clock()
         self._latencies: deque[float] = deque(maxlen=window)
-        self._done_at: deque[float] = deque(maxlen=window)
+        # Finish times within the fps window: as many as frames finish in that window.
+        self._done_at: deque[float] = deque()
+        self._fps_window_s = fps_window_s
+        self._frame_budget_ms = frame_budget_ms
         self.received = 0
         self.processed = 0
         self.dropped = 0
         self._rejected: Counter[str] = Counter()
+        self._over_budget = 0
+        self._frame_ms_max = 0.0
+        self._detect_ms_max = 0.0
+        self._publish_errors: Counter[str] = Counter()
+        self._processing_errors: Counter[str] = Counter()
+        self._camera_info_received = 0
+        self._camera_info_rejected: Counter[str] = Counter()
 
     def on_received(self, dropped_one: bool) -> None:
         with self._lock:
@@ -67,20 +115,49 @@ class ServiceStats:
         with self._lock:
             self._rejected[reason] += 1
 
-    def on_processed(self, latency_ms: float) -> None:
+    def on_processed(
+        self, latency_ms: float, *, frame_ms: float = 0.0, detect_ms: float = 0.0
+    ) -> None:
+        """One frame published; ``frame_ms`` is its own time (decode, convert, detect) and
+        ``detect_ms`` the detector's share."""
         with self._lock:
+            now = self._clock()
             self.processed += 1
             self._latencies.append(latency_ms)
-            self._done_at.append(self._clock())
+            self._done_at.append(now)
+            self._forget_before(now)
+            self._frame_ms_max = max(self._frame_ms_max, frame_ms)
+            self._detect_ms_max = max(self._detect_ms_max, detect_ms)
+            if self._frame_budget_ms is not None and frame_ms > self._frame_budget_ms:
+                self._over_budget += 1
+
+    def on_publish_error(self, output: str) -> None:
+        with self._lock:
+            self._publish_errors[output] += 1
+
+    def on_processing_error(self, stage: str) -> None:
+        with self._lock:
+            self._processing_errors[stage] += 1
+
+    def on_camera_info(self, rejected_reason: str | None) -> None:
+        """One CameraInfo sample, rejected for ``rejected_reason`` (None: accepted)."""
+        with self._lock:
+            self._camera_info_received += 1
+            if rejected_reason is not None:
+                self._camera_info_rejected[rejected_reason] += 1
+
+    def _forget_before(self, now: float) -> None:
+        horizon = now - self._fps_window_s
+        while self._done_at and self._done_at[0] <= horizon:
+            self._done_at.popleft()
 
     def snapshot(self) -> StatsSnapshot:
         with self._lock:
             now = self._clock()
             lat = np.fromiter(self._latencies, dtype=np.float64)
-            recent = [t for t in self._done_at if now - t <= 5.0]
-            fps = 0.0
-            if len(recent) >= 2 and recent[-1] > recent[0]:
-                fps = (len(recent) - 1) / (recent[-1] - recent[0])
+            self._forget_before(now)
+            span = min(self._fps_window_s, now - self._start)
+            fps = len(self._done_at) / span if span > 0 else 0.0
             if lat.size:
                 p50, p99 = (float(v) for v in np.percentile(lat, [50, 99]))
                 mean = float(lat.mean())
@@ -96,6 +173,14 @@ class ServiceStats:
                 latency_p50_ms=p50,
                 latency_p99_ms=p99,
                 latency_mean_ms=mean,
+                frame_budget_ms=self._frame_budget_ms,
+                over_budget=self._over_budget,
+                frame_ms_max=self._frame_ms_max,
+                detect_ms_max=self._detect_ms_max,
+                publish_errors=dict(self._publish_errors),
+                processing_errors=dict(self._processing_errors),
+                camera_info_received=self._camera_info_received,
+                camera_info_rejected=dict(self._camera_info_rejected),
             )
 
 

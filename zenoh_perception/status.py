@@ -8,6 +8,8 @@ from typing import Any, TextIO
 
 import zenoh
 
+from zenoh_perception.zenoh_args import open_zenoh
+
 
 def query_status(
     session: zenoh.Session, key: str = "perception/status", timeout: float = 2.0
@@ -33,8 +35,13 @@ def main(
     timeout: float = 2.0,
     out: TextIO = sys.stdout,
 ) -> int:
-    """Print the status JSON; 0 when at least one service answered, 1 otherwise."""
-    with zenoh.open(conf) as session:
+    """Print the status JSON; 0 when at least one service answered, 1 otherwise.
+
+    Raises:
+        SessionError: the Zenoh session cannot be opened.
+
+    """
+    with open_zenoh(conf) as session:
         replies = query_status(session, key, timeout)
     if not replies:
         print(f"no perception service answered on {key!r} within {timeout} s", file=sys.stderr)

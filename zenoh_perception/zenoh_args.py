@@ -9,11 +9,33 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import zenoh
 
-from zenoh_perception.errors import SettingsError
+from zenoh_perception.errors import SessionError, SettingsError
+
+
+def zenoh_error_text(err: Exception) -> str:
+    """A Zenoh error as one readable line (without the Rust source locations it carries)."""
+    text = re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", str(err))
+    return " ".join(text.split())
+
+
+def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(conf)``.
+
+    Raises:
+        SessionError: the session cannot be opened (a listen port in use, an endpoint that
+            does not parse, no router in client mode, ...), in one line.
+
+    """
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as err:
+        msg = f"cannot open the Zenoh session: {zenoh_error_text(err)}"
+        raise SessionError(msg) from err
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,6 +100,6 @@ def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
                 raise SettingsError(msg)
             conf.insert_json5(key, value)
     except zenoh.ZError as err:
-        msg = f"invalid Zenoh configuration: {err}"
+        msg = f"invalid Zenoh configuration: {zenoh_error_text(err)}"
         raise SettingsError(msg) from err
     return conf

@@ -56,11 +56,13 @@ from zenoh_perception.errors import FrameDecodeError
 from zenoh_perception.frames import (
     MAX_ATTACHMENT_BYTES,
     MAX_DIMENSION,
+    check_payload_size,
     decode_image_cdr,
     decode_raw_frame,
     encode_image_cdr,
 )
 from zenoh_perception.service import PROCESSING_ERROR
+from zenoh_perception.settings import Settings
 
 OK: Final = "ok"
 
@@ -361,11 +363,13 @@ def expected_outcome(case: Case) -> str:
     Runs the project's decoders, as the service does. Any exception other than
     FrameDecodeError propagates (with the payload's kind in the traceback): that is a bug.
     """
+    limits = Settings()
     try:
+        check_payload_size(len(case.payload), limits.max_frame_bytes)
         if case.attachment is not None:
-            decode_raw_frame(case.payload, case.attachment)
+            decode_raw_frame(case.payload, case.attachment, max_pixels=limits.max_frame_pixels)
         else:
-            decode_image_cdr(case.payload)
+            decode_image_cdr(case.payload, max_pixels=limits.max_frame_pixels)
     except FrameDecodeError as err:
         return err.reason
     return OK

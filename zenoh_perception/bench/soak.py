@@ -37,6 +37,7 @@ from zenoh_perception.bench.flood import (
     MarkerFrame,
     ProcSample,
     frames_of,
+    is_idle,
     marker_frame,
     percentile,
     proc_sample,
@@ -237,12 +238,13 @@ def run_soak(config: SoakConfig, *, progress: TextIO | None = None) -> SoakRepor
                     raise ChildProcessError(msg)
                 last = proc_sample(proc.pid)
                 samples.append((time.monotonic() - start, last.rss_kib, last.threads, last.fds))
-                # Let the last frames through, then read the service's own view.
+                # Let the last frames through (received, and none still in the worker), then
+                # read the service's own view.
                 service = wait_status(
                     session,
-                    lambda s: frames_of(s)["received"] >= seq,
+                    lambda s: frames_of(s)["received"] >= seq and is_idle(s),
                     timeout=10.0,
-                    what="every frame received",
+                    what="every frame received and handled",
                 )
                 camera.close()
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
