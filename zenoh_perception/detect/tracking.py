@@ -1,37 +1,33 @@
 """OpenCV's ArUco detector, run on the whole frame only when it must be.
 
 Every marker this detector reports was decided by ``cv2.aruco.ArucoDetector`` with OpenCV's
-default parameters, on the whole frame (a *scan*) or on a region of it around a marker that a
-previous frame showed (*following*). What it adds is the choice of where to look:
+default parameters, on the whole frame (a *scan*) or on a region of it (*following*). What it
+adds is the choice of where to look. Each frame is first compared with the previous one on a
+thumbnail (one pixel per 16 x 16 block), and:
 
-- A scan runs on the first frame; on a scene cut (the frame no longer looks like the previous
-  one: its thumbnail, one pixel per 16 x 16 block, differs by more than ``scene_cut_level``
-  grey levels on average); when one block away from the known markers changed by more than
-  ``appear_level`` (something appeared there); whenever a followed marker is not found again
-  where it was expected (it moved farther than its region, was hidden or left); when no known
-  marker is in view; when OpenCV reads, on the frame at a quarter of its size (a glimpse,
-  a sixteenth of the pixels), a marker that no known one explains (a large marker turning
-  into view); and at least every ``full_scan_period`` frames, so a marker that enters a
-  followed scene unnoticed is reported within that many frames.
-- Between scans each known marker is searched for in a region around the place its last two
-  sightings predict (constant velocity), with a margin of half its side plus its motion,
-  at the scale that keeps its side at least READ_SIDE_PX (a large marker needs no more
-  pixels to be read); a region inside one already read as finely is skipped, and a marker
-  read in two regions is reported once. Any marker the detector decides on in a region is
-  reported, known or new.
-- The quads a scan saw but OpenCV could not read (its rejected candidates: a marker too
-  small, blurred or dim to read yet) are searched in their regions too until the next scan,
-  up to ``candidate_regions`` of them, smallest first: a far marker is reported on the first
-  frame it can be read, not at the next scan.
-- A marker that neither its region nor the scan that followed found is still searched for
-  in its region for ``coast_frames`` frames: a small or blurred marker that OpenCV reads on
-  some frames and not on others is read again as soon as it can be, not at the next scan.
-- With no marker known, a frame that looks like the previous one (a still scene: the
-  thumbnail differs by less than ``still_level`` on average) is not read again until the
-  period is over.
+- the whole frame is scanned on the first frame; on a scene cut (the thumbnail differs by more
+  than ``scene_cut_level`` grey levels on average, so independent frames are each scanned);
+  when no known marker was in view on the previous frame; when a block away from the known
+  markers changed by more than ``appear_level`` (something appeared there); when a followed
+  marker is not found again where it
+  was expected (it moved farther than its region, was hidden or left); when OpenCV reads, on
+  the frame at a quarter of its size (a glimpse, a sixteenth of the pixels), a marker that no
+  known one explains (a large marker turning into view); and at least every
+  ``full_scan_period`` frames, so a marker that enters a followed scene unnoticed is reported
+  within that many frames;
+- otherwise the frame is followed: each known marker is read in a region around the place its
+  last two sightings predict (constant velocity), with a margin of half its side plus its
+  motion, at the scale that keeps its side at least READ_SIDE_PX (a large marker needs no
+  more pixels to be read; its corners are then refined at full resolution). A region inside
+  one already read as finely is skipped and a marker read twice is reported once. Any
+  marker OpenCV decides on in a region is reported, known or new;
+- a marker that neither its region nor the scan that followed found is still read in its
+  region for ``coast_frames`` frames: a small or blurred marker that OpenCV reads on some
+  frames and not on others is read again as soon as it can be, not at the next scan;
+- with no marker known, a frame whose thumbnail differs from the previous one by less than
+  ``still_level`` on average (a still scene) is not read again until the period is over.
 
-Independent frames are therefore each scanned (every one is a scene cut), and on video the
-detector reads whole frames about once per period. One instance per stream; not thread-safe.
+One instance per stream; not thread-safe.
 """
 
 from __future__ import annotations
@@ -49,6 +45,7 @@ from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 
 Gray = npt.NDArray[np.uint8]
+Change = npt.NDArray[np.int16]
 
 #: Side of the blocks of the thumbnail that tells scene cuts, appearances and still scenes.
 BLOCK: Final = 16
@@ -62,23 +59,23 @@ MIN_MARGIN_PX: Final = 20.0
 
 @dataclass(frozen=True, slots=True)
 class TrackingConfig:
-    """How often whole frames are scanned, and what counts as a scene cut or a still scene."""
+    """How often whole frames are scanned, and what counts as a scene cut, an appearance or a
+    still scene."""
 
     full_scan_period: int = 4
     coast_frames: int = 8
-    candidate_regions: int = 24
     scene_cut_level: float = 12.0
     appear_level: float = 48.0
     still_level: float = 0.5
+    glimpse: bool = True
 
     def __post_init__(self) -> None:
         if not 1 <= self.full_scan_period <= 1000:
             msg = f"full_scan_period must be 1..1000, not {self.full_scan_period}"
             raise SettingsError(msg)
-        for name in ("coast_frames", "candidate_regions"):
-            if not 0 <= getattr(self, name) <= 1000:
-                msg = f"{name} must be 0..1000, not {getattr(self, name)}"
-                raise SettingsError(msg)
+        if not 0 <= self.coast_frames <= 1000:
+            msg = f"coast_frames must be 0..1000, not {self.coast_frames}"
+            raise SettingsError(msg)
         for name in ("scene_cut_level", "appear_level", "still_level"):
             value = getattr(self, name)
             if not 0.0 <= value <= 255.0:
@@ -128,27 +125,30 @@ class TrackingDetector:
         self.config = config if config is not None else TrackingConfig()
         self._opencv = OpenCvDetector(dictionary)
         self._tracks: list[_Track] = []
-        self._candidates: list[_Track] = []
-        self._thumb: npt.NDArray[np.int16] | None = None
+        self._thumb: Change | None = None
         self._small: Gray = np.zeros((1, 1), np.uint8)
         self._since_scan = 0
-        self.counters: dict[str, int] = {
-            "frames": 0,
-            "scans": 0,
-            "scene_cuts": 0,
-            "appearances": 0,
-            "glimpses": 0,
-            "lost_rescans": 0,
-            "followed": 0,
-            "regions": 0,
-            "still_skips": 0,
-        }
+        self.counters: dict[str, int] = dict.fromkeys(
+            (
+                "frames",
+                "scans",
+                "scene_cuts",
+                "appearances",
+                "glimpses",
+                "lost_rescans",
+                "followed",
+                "regions",
+                "still_skips",
+            ),
+            0,
+        )
 
     def detect(self, gray: Gray) -> list[Detection]:
         self.counters["frames"] += 1
+        self._since_scan += 1
+        height, width = gray.shape[:2]
         with single_threaded():
             change = self._change(gray)
-        self._since_scan += 1
         if change is None:
             return self._scan(gray)
         if float(change.mean()) > self.config.scene_cut_level:
@@ -161,11 +161,11 @@ class TrackingDetector:
                 self.counters["still_skips"] += 1
                 return []
             return self._scan(gray)
-        if self._appeared(change, gray.shape[1], gray.shape[0]):
+        if self._appeared(change, width, height):
             self.counters["appearances"] += 1
             return self._scan(gray)
         with single_threaded():
-            glimpsed = self._glimpsed()
+            glimpsed = self.config.glimpse and self._glimpsed()
             found = None if glimpsed else self._follow(gray)
         if glimpsed:
             self.counters["glimpses"] += 1
@@ -179,11 +179,10 @@ class TrackingDetector:
     def reset(self) -> None:
         """Forget the stream: the next frame is scanned."""
         self._tracks = []
-        self._candidates = []
         self._thumb = None
         self._since_scan = 0
 
-    def _change(self, gray: Gray) -> npt.NDArray[np.int16] | None:
+    def _change(self, gray: Gray) -> Change | None:
         """Absolute change of each block's mean grey level since the previous frame (None:
         no previous frame of this size). Keeps the frame at a quarter of its size for
         :meth:`_glimpsed`."""
@@ -194,12 +193,12 @@ class TrackingDetector:
         thumb = cv2.resize(self._small, size, interpolation=cv2.INTER_AREA).astype(np.int16)
         previous, self._thumb = self._thumb, thumb
         if previous is None or previous.shape != thumb.shape:
-            self._tracks, self._candidates = [], []
+            self._tracks = []
             return None
-        change: npt.NDArray[np.int16] = np.abs(thumb - previous)
+        change: Change = np.abs(thumb - previous)
         return change
 
-    def _appeared(self, change: npt.NDArray[np.int16], width: int, height: int) -> bool:
+    def _appeared(self, change: Change, width: int, height: int) -> bool:
         """Whether a block away from every known marker changed by more than appear_level."""
         changed = change > self.config.appear_level
         if not changed.any():
@@ -226,12 +225,7 @@ class TrackingDetector:
     def _scan(self, gray: Gray) -> list[Detection]:
         self.counters["scans"] += 1
         self._since_scan = 0
-        found, rejected = self._opencv.detect_with_rejected(gray)
-        sides = [side(quad) for quad in rejected]
-        smallest = sorted(range(len(rejected)), key=sides.__getitem__)
-        self._candidates = [
-            _Track(-1, rejected[i]) for i in smallest[: self.config.candidate_regions]
-        ]
+        found = self._opencv.detect(gray)
         unmatched = list(found)
         coasting: list[_Track] = []
         for track in self._tracks:
@@ -247,10 +241,10 @@ class TrackingDetector:
         """Markers in the regions around the known ones; None when one that the previous
         frame showed is missing."""
         height, width = gray.shape[:2]
+        wanted = [(t.region(width, height), t.scale()) for t in self._tracks]
         found: list[Detection] = []
         read: list[tuple[Rect, int]] = []
-        for track in self._tracks + self._candidates:
-            rect, scale = track.region(width, height), track.scale()
+        for rect, scale in wanted:
             if any(inside(rect, done) and s <= scale for done, s in read):
                 continue  # read already, as finely
             read.append((rect, scale))
@@ -281,7 +275,7 @@ def _nearest(track: _Track, candidates: list[Detection]) -> Detection | None:
     """The candidate with the track's id nearest its predicted centre, if within reach."""
     expected = _centre(track.predicted())
     reach = (
-        max(float(np.ptp(track.corners, axis=0).max()), 2.0 * MIN_MARGIN_PX)
+        max(side(track.corners), 2.0 * MIN_MARGIN_PX)
         + float(np.abs(track.motion).max()) * track.missed
     )
     best: Detection | None = None

@@ -36,9 +36,9 @@ DICTIONARIES: Final = (
     "DICT_ARUCO_MIP_36h12",
 )
 
-#: ``tracking``: OpenCV's detector on whole frames when needed, on regions around known tags
-#: in between; ``opencv``: OpenCV's detector on every whole frame.
-DETECTORS: Final = ("tracking", "opencv")
+#: ``opencv`` (the default): OpenCV's detector on every whole frame; ``tracking``: the same
+#: detector on whole frames when needed, on regions around known tags in between.
+DETECTORS: Final = ("opencv", "tracking")
 
 
 def dictionary_name(name: str) -> str:
