@@ -175,3 +175,18 @@ def test_cli_exit_codes_follow_the_goals(corpus: Path, tmp_path: Path) -> None:
     assert cli.main(argv) == 1
     # a missing file is an error naming the item, exit 2
     assert cli.main(["bench", "--dataset", str(clean), "--data", str(tmp_path)]) == 2
+
+
+def test_videos_go_end_to_end_through_service_processes_and_the_floor(corpus: Path) -> None:
+    items = [i for i in load_manifest(corpus / "manifest.json") if i.name == "walk"]
+    report = evaluate(items, corpus / "data", Settings(), e2e=True, shm=False)
+    (row,) = report["items"]
+    e2e = row["e2e"]
+    assert set(e2e) >= {"opencv", "tracking", "floor", "opencv_detection", "camera"}
+    for name in ("opencv", "tracking", "floor"):
+        assert e2e[name]["records"] == 6  # every frame answered, in lockstep
+    assert e2e["opencv"]["found"] == e2e["tracking"]["found"] == row["opencv"]["found"] == 6
+    assert e2e["floor"]["found"] == 0  # the floor detects nothing: it only answers
+    names = [g["goal"] for g in report["goals"]]
+    assert "video walk: found by the service process >= OpenCV default" in names
+    assert any(n.startswith("videos: service (detector=opencv) mean e2e - floor") for n in names)
