@@ -25,6 +25,7 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
 )
+from zenoh_perception import cli
 from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.records import FrameRecord, TagCodec, decode_record
 from zenoh_perception.scene import render_markers
@@ -369,3 +370,20 @@ def test_echo_prints_and_counts_gaps_in_the_record_seq(endpoint: str) -> None:
     assert gaps == [{"after": 2, "next": 5, "missing": 2}, {"after": 6, "next": 9, "missing": 2}]
     assert [line["seq"] for line in lines if "seq" in line] == [1, 2, 5, 6, 9]
     assert "echo: records=5 gaps=2 missing=4 restarts=0" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["run", "--tag-kye", "x"], "--tag-kye: did you mean --tag-key?"),
+        (["bench", "--datset", "m.json"], "--datset: did you mean --dataset?"),
+        (["echo", "--jsn"], "--jsn: did you mean --json?"),
+    ],
+)
+def test_a_mistyped_flag_names_the_closest_one(
+    argv: list[str], hint: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    assert exit_info.value.code == 2
+    assert hint in capsys.readouterr().err

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 import zenoh
 
@@ -118,8 +120,37 @@ _COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]],
 )
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse that names the closest flag (of any subcommand) when one is mistyped."""
+
+    def error(self, message: str) -> NoReturn:
+        prefix = "unrecognized arguments: "
+        if message.startswith(prefix):
+            known = sorted(_option_strings(self))
+            hints = []
+            for token in message.removeprefix(prefix).split():
+                flag = token.split("=", 1)[0]
+                close = difflib.get_close_matches(flag, known, n=1) if flag.startswith("-") else []
+                if close:
+                    hints.append(f"{flag}: did you mean {close[0]}?")
+            if hints:
+                message = f"{message} ({'; '.join(hints)})"
+        super().error(message)
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> set[str]:
+    """Every flag of ``parser`` and of its subcommands."""
+    found: set[str] = set()
+    for action in parser._actions:  # argparse offers no public view of them
+        found.update(s for s in action.option_strings if s.startswith("--"))
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _option_strings(sub)
+    return found
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="zenoh-perception",
         description="ArUco tag perception over Zenoh, ROS 2 compatible on the wire.",
     )
@@ -130,7 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("DEBUG", "INFO", "WARNING", "ERROR"),
         help="log level (default INFO); Zenoh's own log follows RUST_LOG",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    # a mistyped flag of a subcommand is reported by this top-level parser
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=argparse.ArgumentParser
+    )
     for add in _COMMANDS:
         add(sub)
     return parser
