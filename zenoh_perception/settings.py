@@ -97,7 +97,7 @@ class Settings:
     dictionary: str = field(default="DICT_4X4_50", metadata=_doc("predefined ArUco dictionary"))
     detector: str = field(
         default="opencv",
-        metadata=_doc("'opencv' (OpenCV's detector, every frame) or 'tracking' (faster on video)"),
+        metadata=_doc("'opencv' (OpenCV's detector, every frame) or 'tracking' (experimental)"),
     )
     full_scan_period: int = field(
         default=4,
