@@ -4,9 +4,9 @@ Baseline: what users would otherwise run, BGRA -> BGR (``cv2.cvtColor``) then
 ``cv2.aruco.ArucoDetector(DICT_4X4_50, DetectorParameters()).detectMarkers`` on the BGR image;
 its time includes the conversion. Project: the ``tracking`` detector
 (:mod:`zenoh_perception.detect.tracking`, one per frame set) on the BGRA frame as the service
-runs it (:class:`~zenoh_perception.pipeline.TagFinder`), timed the same way. Both run on the same generated frames
-(:mod:`zenoh_perception.scene`, exact ground truth), one frame after the other (alternating
-which goes first), in one process.
+runs it (:class:`~zenoh_perception.pipeline.TagFinder`), timed the same way. Both run on the
+same generated frames (:mod:`zenoh_perception.scene`, exact ground truth), one frame after the
+other (alternating which goes first), in one process.
 
 Frame sets (realistic effects: blur, motion blur, noise, lighting, clutter):
 
