@@ -40,10 +40,11 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception import service as service_module
-from zenoh_perception.bench.flood import RESOLUTIONS, MarkerFrame, marker_frame, raw_attachment
+from zenoh_perception.bench.flood import MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.scene import RESOLUTIONS
 from zenoh_perception.service import PerceptionService
 from zenoh_perception.settings import Settings
 

@@ -91,13 +91,15 @@ from zenoh_perception.errors import PerceptionError
 from zenoh_perception.frames import ENCODINGS, Frame, RawFrameMeta
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.pose import Intrinsics, estimate_pose
+from zenoh_perception.scene import RESOLUTIONS as SCENE_RESOLUTIONS
 from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
 from zenoh_perception.shm import Loaded, ShmPutter
 
 Image = npt.NDArray[np.uint8]
 Handler = Callable[[argparse.Namespace], int]
 
-RESOLUTIONS: Final = ("VGA", "HD720", "HD1080", "HD2K")
+#: The independent frame sets: every named resolution of the scene generator.
+RESOLUTIONS: Final = tuple(SCENE_RESOLUTIONS)
 DICTIONARY: Final = "DICT_4X4_50"
 BGRA8: Final = ENCODINGS["bgra8"]
 VIDEO_RESOLUTION: Final = "HD720"

@@ -41,18 +41,11 @@ from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.frames import RawFrameMeta
 from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.scene import RESOLUTIONS
 from zenoh_perception.selection import TagMessage
 from zenoh_perception.status import query_status
 
 Pixels = npt.NDArray[np.uint8]
-
-#: ZED camera resolutions (width, height).
-RESOLUTIONS: Final = {
-    "VGA": (672, 376),
-    "HD720": (1280, 720),
-    "HD1080": (1920, 1080),
-    "HD2K": (2208, 1242),
-}
 
 INPUT_KEY: Final = "zed/left/image"
 TAG_KEY: Final = "tag"

@@ -32,7 +32,6 @@ import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.flood import (
-    RESOLUTIONS,
     Camera,
     MarkerFrame,
     ProcSample,
@@ -45,6 +44,7 @@ from zenoh_perception.bench.flood import (
 )
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.records import decode_record
+from zenoh_perception.scene import RESOLUTIONS
 
 _SEQ_SLOTS = 1 << 14  # put times kept for latency matching (~4.5 min at 60 Hz)
 
