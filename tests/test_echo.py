@@ -1,9 +1,12 @@
-"""``echo``'s gap counting: records lost on the way show as gaps in their ``seq``."""
+"""``echo``: what it listens to, and gap counting (records lost show as gaps in ``seq``)."""
 
 from __future__ import annotations
 
+import io
 import json
 
+from zenoh_perception import echo
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.echo import Gap, SeqGaps
 
 
@@ -44,3 +47,12 @@ def test_gap_lines_in_text_and_json() -> None:
         "key": "perception/tags",
         "gap": {"after": 2, "next": 5, "missing": 2},
     }
+
+
+def test_echo_says_what_it_listens_to_before_anything_arrives() -> None:
+    out, err = io.StringIO(), io.StringIO()
+    conf = loopback_config(listen=[loopback_endpoint()])
+    code = echo.main(conf, tag_key="rover/tag", count=1, timeout=0.2, out=out, err=err)
+    assert code == 1  # nothing arrived
+    assert out.getvalue() == ""
+    assert "listening on 'rover/tag' and 'perception/tags'" in err.getvalue()

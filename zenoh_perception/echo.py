@@ -176,6 +176,9 @@ def main(
         subscribers: list[Any] = [session.declare_subscriber(tag_key, on_tag)]
         if records:
             subscribers.append(session.declare_subscriber(record_key, on_record))
+        keys = [tag_key, record_key] if records else [tag_key]
+        listening = " and ".join(repr(k) for k in keys)
+        print(f"echo: listening on {listening} (Ctrl-C to stop)", file=err, flush=True)
         code = _print_lines(lines, stop, out, count=count, timeout=timeout)
     if records:
         with gaps_lock:
