@@ -5,9 +5,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import signal
 import socket
 import subprocess
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -26,6 +28,7 @@ from tests.helpers import (
     wait_for_subscriber,
 )
 from zenoh_perception import cli
+from zenoh_perception.bench._loopback import loopback_endpoint
 from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.records import FrameRecord, TagCodec, decode_record
 from zenoh_perception.scene import render_markers
@@ -387,3 +390,33 @@ def test_a_mistyped_flag_names_the_closest_one(
         cli.main(argv)
     assert exit_info.value.code == 2
     assert hint in capsys.readouterr().err
+
+
+def _wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float = 60.0) -> str:
+    """The first line of ``proc``'s output holding ``needle`` (read on a thread, deadline)."""
+    found: queue.Queue[str] = queue.Queue()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if needle in line:
+                found.put(line)
+                return
+
+    threading.Thread(target=read, daemon=True).start()
+    try:
+        return found.get(timeout=timeout)
+    except queue.Empty:
+        pytest.fail(f"no line with {needle!r} within {timeout} s")
+
+
+def test_a_second_service_on_the_same_keys_is_reported_by_both(endpoint: str) -> None:
+    other = loopback_endpoint()
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting") as first,
+        running_cli("run", "-l", other, "-e", endpoint, "--no-multicast-scouting") as second,
+    ):
+        for proc in (first, second):
+            line = _wait_for_line(proc, "event=another_service")
+            assert "level=WARNING" in line
+            assert "tag=tag" in line

@@ -165,6 +165,13 @@ class PerceptionService:
         self._declared.append(session.declare_queryable(s.status_key, self._on_status_query))
         token_key = f"{s.liveliness_key}/{session.zid()}"
         self._declared.append(session.liveliness().declare_token(token_key))
+        # another service under the same liveliness key, there now or later, is reported:
+        # two services on the same keys publish every tag twice
+        self._declared.append(
+            session.liveliness().declare_subscriber(
+                f"{s.liveliness_key}/*", self._on_service_token, history=True
+            )
+        )
         self._threads = [
             threading.Thread(target=self._work, name="perception-worker", daemon=True),
             threading.Thread(target=self._report, name="perception-stats", daemon=True),
@@ -207,6 +214,22 @@ class PerceptionService:
         else:
             self._debug_watched.clear()
         self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
+
+    def _on_service_token(self, sample: zenoh.Sample) -> None:
+        """Another perception service's liveliness token appeared (ours is left out)."""
+        other = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind != zenoh.SampleKind.PUT or other == str(self._session.zid()):
+            return
+        self._log_limited(
+            logging.WARNING,
+            f"another_service:{other}",
+            "another_service",
+            zid=other,
+            liveliness=str(sample.key_expr),
+            tag=self.settings.tag_key,
+            detail="another perception service runs here; on the same keys every tag and "
+            "record is published twice: give each its own keys",
+        )
 
     def _on_camera_info(self, sample: zenoh.Sample) -> None:
         try:
