@@ -420,3 +420,28 @@ def test_a_second_service_on_the_same_keys_is_reported_by_both(endpoint: str) ->
             line = _wait_for_line(proc, "event=another_service")
             assert "level=WARNING" in line
             assert "tag=tag" in line
+
+
+def test_run_warns_when_its_connect_endpoint_stays_unreachable(endpoint: str) -> None:
+    nowhere = loopback_endpoint()  # nothing listens there
+    with running_cli("run", "-l", endpoint, "-e", nowhere, "--no-multicast-scouting") as proc:
+        line = _wait_for_line(proc, "event=unreachable")
+    assert "level=WARNING" in line
+    assert nowhere in line
+
+
+def test_run_says_nothing_of_endpoints_it_reached(endpoint: str) -> None:
+    with (
+        open_session(listen=[endpoint]),
+        running_cli(
+            "run", "-e", endpoint, "--no-multicast-scouting", "--stats-interval-s", "0.5"
+        ) as proc,
+    ):
+        # a stats line comes every 0.5 s; the warning would come 5 s after the start
+        _wait_for_line(proc, "event=started")
+        deadline = time.monotonic() + 7.0
+        lines: list[str] = []
+        assert proc.stdout is not None
+        while time.monotonic() < deadline:
+            lines.append(proc.stdout.readline())
+    assert not any("event=unreachable" in line for line in lines)

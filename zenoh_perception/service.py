@@ -22,6 +22,7 @@ from __future__ import annotations
 import gc
 import json
 import logging
+import math
 import struct
 import threading
 import time
@@ -547,12 +548,44 @@ def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
     session = open_session(conf, stop, log_interval_s=settings.log_interval_s)
     if session is None:
         return 0
+    endpoints = _connect_endpoints(conf)
     with session, PerceptionService(session, settings) as service:
         # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives as
         # long as the process: out of the collector's way. A full collection that scans it
         # stalls a frame until the next one replaces another.
         gc.freeze()
+        check_at = time.monotonic() + CONNECT_WARNING_S if endpoints else math.inf
         while not stop.wait(0.5):
             if service.failed.is_set():
                 return 1
+            if time.monotonic() >= check_at:
+                check_at = math.inf
+                if not _linked(session):
+                    log.warning(
+                        "event=unreachable %s",
+                        kv(
+                            connect=",".join(endpoints),
+                            after_s=CONNECT_WARNING_S,
+                            detail="no peer or router reached through the endpoints to connect "
+                            "to; Zenoh keeps trying",
+                        ),
+                    )
     return 0
+
+
+#: Seconds after start at which ``run`` warns that none of its connect endpoints answered.
+CONNECT_WARNING_S = 5.0
+
+
+def _connect_endpoints(conf: zenoh.Config) -> list[str]:
+    """The endpoints the configuration tells the session to connect to."""
+    value = json.loads(conf.get_json("connect/endpoints"))
+    if isinstance(value, dict):  # per-mode endpoints
+        value = [e for endpoints in value.values() for e in endpoints]
+    return [str(e) for e in value] if isinstance(value, list) else []
+
+
+def _linked(session: zenoh.Session) -> bool:
+    """Whether the session has reached at least one peer or router."""
+    info = session.info
+    return bool(list(info.peers_zid()) or list(info.routers_zid()))
