@@ -187,6 +187,9 @@ def test_demo_runs_camera_service_and_echo_in_one_command() -> None:
     lines = [line for line in result.stdout.splitlines() if line.startswith("[perception/tags]")]
     assert len(lines) >= 3  # latest-frame-wins skips frames when the machine is loaded
     assert any("selected=-1" not in line for line in lines)  # tags are in view
+    truth = [line for line in result.stdout.splitlines() if line.startswith("  truth:")]
+    assert len(truth) == len(lines)  # every answer compared with the frame's truth
+    assert all(" visible; found " in line and "; false ids " in line for line in truth)
 
 
 def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:

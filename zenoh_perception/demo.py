@@ -19,21 +19,27 @@ import itertools
 import sys
 import threading
 import time
-from collections.abc import Iterator
-from typing import TextIO
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Final, TextIO
 
+import numpy as np
 import zenoh
 
-from zenoh_perception.echo import format_record
+from zenoh_perception.echo import format_decoded_record
 from zenoh_perception.errors import PayloadTooLargeError, SettingsError
 from zenoh_perception.frames import RawFrameMeta, check_payload_size, encode_image_cdr
-from zenoh_perception.scene import RESOLUTIONS, CameraModel, Scene, SceneGenerator
+from zenoh_perception.records import decode_record
+from zenoh_perception.scene import RESOLUTIONS, CameraModel, MarkerTruth, Scene, SceneGenerator
 from zenoh_perception.service import PerceptionService, check_transport_limit
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.shm import ShmPutter
 from zenoh_perception.zenoh_args import open_zenoh
 
 DRIVE_SECONDS = 12.0
+
+
+#: Frames whose truth is kept while their record is on its way (dropped frames never answer).
+MAX_TRUTHS: Final = 64
 
 
 def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -> Iterator[Scene]:
@@ -61,6 +67,37 @@ def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:
         raise SettingsError(msg) from err
 
 
+def agreement(record: dict[str, Any], markers: Sequence[MarkerTruth]) -> str:
+    """How the record's tags compare with the truth of the frame it answers: tags found, with
+    their centre (x, y) and closeness, the largest centre error against the rendered truth
+    (px), the visible tags missed and the ids reported where no such tag is."""
+    visible = [m for m in markers if m.visible]
+    found: list[str] = []
+    errors: list[float] = []
+    false_ids: list[int] = []
+    matched: set[int] = set()
+    for tag in record["tags"]:
+        x, y = float(tag["x_tag_center_pixel"]), float(tag["y_tag_center_pixel"])
+        hits = [
+            (float(np.hypot(*(m.corner_mean - (x, y)))), i)
+            for i, m in enumerate(markers)
+            if m.tag_id == tag["tag_id"] and i not in matched
+        ]
+        if not hits or min(hits)[0] > max(3.0, 0.3 * markers[min(hits)[1]].side_px):
+            false_ids.append(int(tag["tag_id"]))
+            continue
+        error, index = min(hits)
+        matched.add(index)
+        errors.append(error)
+        found.append(f"{tag['tag_id']}@({x:.1f},{y:.1f}) c={float(tag['closeness_metric']):.3f}")
+    missed = sorted(m.tag_id for i, m in enumerate(markers) if m.visible and i not in matched)
+    worst = f"{max(errors):.2f}" if errors else "-"
+    return (
+        f"  truth: {len(visible)} visible; found {' '.join(found) or '-'}; "
+        f"centre error <= {worst} px; missed {missed or '-'}; false ids {false_ids or '-'}"
+    )
+
+
 def publish_camera(
     session: zenoh.Session,
     key: str,
@@ -72,9 +109,11 @@ def publish_camera(
     limit: int = 0,
     shm: bool = False,
     max_frame_bytes: int | None = None,
+    on_frame: Callable[[int, Scene], None] | None = None,
 ) -> int:
     """Publish ``scenes`` at ``fps`` until ``stop`` (or ``limit`` frames); returns frames sent.
     With ``shm``, frames go from a Zenoh shared-memory buffer (plain puts if unavailable).
+    ``on_frame(stamp_ns, scene)`` is called before each frame is put.
 
     Raises:
         SettingsError: a frame exceeds ``max_frame_bytes`` (None: no limit).
@@ -101,6 +140,8 @@ def publish_camera(
                 payload, attachment = scene.image.tobytes(), meta.to_msgpack()
             if max_frame_bytes is not None:
                 check_frame_bytes(len(payload), max_frame_bytes, f"demo frame {seq + 1}")
+            if on_frame is not None:
+                on_frame(stamp_ns, scene)
             if putter is None:
                 publisher.put(payload, attachment=attachment)
             else:
@@ -147,6 +188,16 @@ def main(
         width * height * 4, settings.max_frame_bytes, f"a {resolution} BGRA demo frame"
     )
     scenes = drive_forever(resolution, fps, settings.dictionary)
+    # the truth of the frames put, by stamp, until their record is shown
+    truths: dict[int, tuple[MarkerTruth, ...]] = {}
+    lock = threading.Lock()
+
+    def remember(stamp_ns: int, scene: Scene) -> None:
+        with lock:
+            truths[stamp_ns] = scene.markers
+            while len(truths) > MAX_TRUTHS:
+                del truths[next(iter(truths))]
+
     with open_zenoh(conf) as session:
 
         def camera() -> None:
@@ -160,6 +211,7 @@ def main(
                 limit=limit,
                 shm=shm,
                 max_frame_bytes=settings.max_frame_bytes,
+                on_frame=None if camera_only else remember,
             )
 
         if camera_only:
@@ -167,11 +219,13 @@ def main(
             return 0
 
         def show(sample: zenoh.Sample) -> None:
-            print(
-                format_record(str(sample.key_expr), sample.payload.to_bytes(), as_json=False),
-                file=out,
-                flush=True,
-            )
+            record = decode_record(sample.payload.to_bytes())
+            with lock:
+                markers = truths.pop(int(record["stamp_ns"]), None)
+            lines = [format_decoded_record(str(sample.key_expr), record, as_json=False)]
+            if markers is not None:
+                lines.append(agreement(record, markers))
+            print("\n".join(lines), file=out, flush=True)
 
         with PerceptionService(session, settings):
             subscriber = session.declare_subscriber(settings.record_key, show)

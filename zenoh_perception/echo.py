@@ -43,7 +43,7 @@ def format_tag(key: str, payload: bytes, codec: TagCodec, *, as_json: bool) -> s
     )
 
 
-def _format_decoded_record(key: str, record: dict[str, Any], *, as_json: bool) -> str:
+def format_decoded_record(key: str, record: dict[str, Any], *, as_json: bool) -> str:
     if as_json:
         return json.dumps({"key": key, **record})
     ids = ",".join(str(tag.get("tag_id")) for tag in record["tags"]) or "-"
@@ -56,7 +56,7 @@ def _format_decoded_record(key: str, record: dict[str, Any], *, as_json: bool) -
 
 
 def format_record(key: str, payload: bytes, *, as_json: bool) -> str:
-    return _format_decoded_record(key, decode_record(payload), as_json=as_json)
+    return format_decoded_record(key, decode_record(payload), as_json=as_json)
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,7 +170,7 @@ def main(
             gap = gaps.observe(record["seq"])
             if gap is not None:
                 lines.put(_Line(gap.format(key, as_json=as_json), False))
-            lines.put(_Line(_format_decoded_record(key, record, as_json=as_json), True))
+            lines.put(_Line(format_decoded_record(key, record, as_json=as_json), True))
 
     with open_zenoh(conf) as session:
         subscribers: list[Any] = [session.declare_subscriber(tag_key, on_tag)]
