@@ -448,3 +448,29 @@ def test_run_says_nothing_of_endpoints_it_reached(endpoint: str) -> None:
         while time.monotonic() < deadline:
             lines.append(proc.stdout.readline())
     assert not any("event=unreachable" in line for line in lines)
+
+
+def _json_objects(text: str) -> list[dict[str, object]]:
+    decoder = json.JSONDecoder()
+    objects, index = [], 0
+    while (index := text.find("{", index)) != -1:
+        value, index = decoder.raw_decode(text, index)
+        objects.append(value)
+    return objects
+
+
+def test_status_gathers_every_service_for_its_whole_timeout(endpoint: str) -> None:
+    other = loopback_endpoint()
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting") as first,
+        running_cli("run", "-l", other, "-e", endpoint, "--no-multicast-scouting") as second,
+    ):
+        for proc in (first, second):
+            _wait_for_line(proc, "event=another_service")  # both up and linked
+        started = time.monotonic()
+        result = run_cli("status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "3")
+        took = time.monotonic() - started
+    assert result.returncode == 0, result.stderr
+    replies = _json_objects(result.stdout)
+    assert len({reply["zid"] for reply in replies}) == 2
+    assert took >= 3.0  # it listened for the whole timeout

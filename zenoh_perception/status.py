@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
+import time
 from typing import Any, TextIO
 
 import zenoh
@@ -12,20 +14,39 @@ from zenoh_perception.zenoh_args import open_zenoh
 
 
 def query_status(
-    session: zenoh.Session, key: str = "perception/status", timeout: float = 2.0
+    session: zenoh.Session,
+    key: str = "perception/status",
+    timeout: float = 2.0,
+    *,
+    gather: bool = True,
 ) -> list[dict[str, Any]]:
-    """Every status reply that arrives within ``timeout`` s (one per running service)."""
-    replies: list[dict[str, Any]] = []
-    for reply in session.get(key, timeout=timeout):
-        if reply.ok is None:
-            continue
-        try:
-            data = json.loads(reply.ok.payload.to_string())
-        except ValueError:
-            continue
-        if isinstance(data, dict):
-            replies.append(data)
-    return replies
+    """Every service's status reply, one per service.
+
+    With ``gather`` the query is repeated until ``timeout`` (s) is over: a peer discovered
+    late, or whose queryable was not known yet when the first query went out, still answers.
+    Without it, the replies to one query (a poll that will ask again).
+    """
+    deadline = time.monotonic() + timeout
+    by_service: dict[str, dict[str, Any]] = {}
+    while (left := deadline - time.monotonic()) > 0:
+        for reply in session.get(key, timeout=left):
+            if reply.ok is None:
+                continue
+            try:
+                data = json.loads(reply.ok.payload.to_string())
+            except ValueError:
+                continue
+            if isinstance(data, dict):
+                by_service[str(data.get("zid", len(by_service)))] = data
+        if not gather:
+            break
+        # a query that nobody could answer returns at once: do not spin
+        threading.Event().wait(min(REQUERY_S, max(0.0, deadline - time.monotonic())))
+    return list(by_service.values())
+
+
+#: Pause between two queries of :func:`query_status`.
+REQUERY_S = 0.1
 
 
 def main(

@@ -258,7 +258,7 @@ def wait_status(
     deadline = time.monotonic() + timeout
     last: dict[str, Any] | None = None
     while time.monotonic() < deadline:
-        replies = query_status(session, key, timeout=1.0)
+        replies = query_status(session, key, timeout=1.0, gather=False)
         if replies:
             last = replies[0]
             if predicate(last):
@@ -466,7 +466,7 @@ def run_load(
             start = time.monotonic()
             for i in range(count):
                 if i == hold_at:
-                    replies = query_status(session, STATUS_KEY, timeout=1.0)
+                    replies = query_status(session, STATUS_KEY, timeout=1.0, gather=False)
                     dropped_before_hold.append(frames_of(replies[0])["dropped"] if replies else 0)
                     gate.hold()
                 _pace(start, i, rate)
