@@ -353,50 +353,47 @@ class FrameSet:
 
 
 def frame_sets(plan: Plan, progress: Progress | None) -> list[FrameSet]:
-    """Independent frames per resolution, the video drive and the look-alike frames."""
+    """Independent frames per resolution, the video drive, the look-alike frames, and the
+    real-camera independent frames and drive."""
     sets: list[FrameSet] = []
+
+    def add(name: str, scenes: Iterable[Scene], resolution: str, *, video: bool = False) -> None:
+        collected = []
+        for scene in scenes:
+            collected.append(scene)
+            _tick(progress, f"scenes {name}")
+        sets.append(FrameSet(name, resolution, collected, video))
+
+    def generator(resolution: str, seed_offset: int, effects: Effects) -> SceneGenerator:
+        camera = CameraModel.named(resolution)
+        return SceneGenerator(camera, seed=plan.seed + seed_offset, effects=effects)
+
+    def drive(scenes: SceneGenerator) -> Iterable[Scene]:
+        return scenes.drive(plan.video_frames, fps=plan.video_fps, n_tags=4, n_distractors=2)
+
     for offset, resolution in enumerate(RESOLUTIONS):
-        generator = SceneGenerator(
-            CameraModel.named(resolution), seed=plan.seed + offset, effects=Effects.realistic()
-        )
-        scenes = []
-        for _ in range(plan.frames):
-            scenes.append(generator.random_scene(4, 2))
-            _tick(progress, f"scenes {resolution}")
-        sets.append(FrameSet(resolution, resolution, scenes))
-    generator = SceneGenerator(
-        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 10, effects=Effects.realistic()
+        scenes = generator(resolution, offset, Effects.realistic())
+        add(resolution, (scenes.random_scene(4, 2) for _ in range(plan.frames)), resolution)
+    video = generator(VIDEO_RESOLUTION, 10, Effects.realistic())
+    add("video", drive(video), VIDEO_RESOLUTION, video=True)
+    lookalikes = generator(VIDEO_RESOLUTION, 20, Effects.realistic())
+    add(
+        "distractors",
+        (lookalikes.random_scene(1, 6) for _ in range(plan.distractor_frames)),
+        VIDEO_RESOLUTION,
     )
-    video = []
-    for scene in generator.drive(plan.video_frames, fps=plan.video_fps, n_tags=4, n_distractors=2):
-        video.append(scene)
-        _tick(progress, "scenes video")
-    sets.append(FrameSet("video", VIDEO_RESOLUTION, video, video=True))
-    generator = SceneGenerator(
-        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 20, effects=Effects.realistic()
+    real = generator(VIDEO_RESOLUTION, 40, Effects.real_camera())
+    # every other frame has a quarter of its tags cut by the border
+    add(
+        "real-camera",
+        (
+            real.random_scene(4, 2, partial_fraction=0.25 if index % 2 else 0.0)
+            for index in range(plan.frames)
+        ),
+        VIDEO_RESOLUTION,
     )
-    lookalikes = []
-    for _ in range(plan.distractor_frames):
-        lookalikes.append(generator.random_scene(1, 6))
-        _tick(progress, "scenes distractors")
-    sets.append(FrameSet("distractors", VIDEO_RESOLUTION, lookalikes))
-    generator = SceneGenerator(
-        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 40, effects=Effects.real_camera()
-    )
-    real = []
-    for index in range(plan.frames):
-        # tiny to half the frame, and a quarter of them cut by the border
-        real.append(generator.random_scene(4, 2, partial_fraction=0.25 if index % 2 else 0.0))
-        _tick(progress, "scenes real-camera")
-    sets.append(FrameSet("real-camera", VIDEO_RESOLUTION, real))
-    generator = SceneGenerator(
-        CameraModel.named(VIDEO_RESOLUTION), seed=plan.seed + 50, effects=Effects.real_camera()
-    )
-    drive = []
-    for scene in generator.drive(plan.video_frames, fps=plan.video_fps, n_tags=4, n_distractors=2):
-        drive.append(scene)
-        _tick(progress, "scenes real-camera video")
-    sets.append(FrameSet("real-camera video", VIDEO_RESOLUTION, drive, video=True))
+    real_drive = generator(VIDEO_RESOLUTION, 50, Effects.real_camera())
+    add("real-camera video", drive(real_drive), VIDEO_RESOLUTION, video=True)
     return sets
 
 
