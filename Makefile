@@ -2,7 +2,7 @@
 #   make run    create .venv when missing, install, start the service (peer mode)
 #   make test   same set-up, then lint, type check and the whole test suite
 #   make demo   synthetic camera + service + echo in one process
-#   make bench  the detector benchmark (baseline vs. project), README table figures
+#   make bench  the generator benchmark against OpenCV's default (docs/benchmarks.md)
 
 SHELL := /bin/bash
 VENV ?= .venv
