@@ -34,12 +34,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import cv2
 import numpy as np
@@ -49,9 +48,7 @@ from zenoh_perception.bench import detectors as bench
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, dictionary_name
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.frames import ENCODINGS, Frame
 from zenoh_perception.geometry import mean_side
-from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.settings import Settings
 
 Image = npt.NDArray[np.uint8]
@@ -61,7 +58,6 @@ KINDS: Final = ("image", "video", "sequence")
 SIZE_EDGES: Final = (24.0, 48.0, 96.0, 192.0)
 #: Goal: the service's mean own cost on video / OpenCV's mean detection time.
 VIDEO_OWN_COST_RATIO: Final = 0.5
-BGRA8: Final = ENCODINGS["bgra8"]
 
 
 class DatasetError(PerceptionError):
@@ -273,28 +269,21 @@ class Score:
         }
 
 
-class _Runner:
-    """One detector as the bench runs it: ``opencv`` (the user's way) or ``service``."""
+class _Runner(Protocol):
+    """A detector as the bench runs it: detections and milliseconds for one BGRA image."""
 
-    def __init__(self, who: str, dictionary: str, settings: Settings) -> None:
-        self.who = who
-        if who == "opencv":
-            self._baseline: bench.Baseline | None = bench.Baseline(dictionary)
-            self._finder: TagFinder | None = None
-        else:
-            self._baseline = None
-            detector = make_detector(
-                settings.detector, dictionary, full_scan_period=settings.full_scan_period
-            )
-            self._finder = TagFinder(detector, settings.min_tag_side_px)
+    def run(self, image: Image) -> tuple[list[Detection], float]: ...
 
-    def run(self, image: Image) -> tuple[list[Detection], float]:
-        if self._baseline is not None:
-            return self._baseline.run(image)
-        assert self._finder is not None
-        start = time.perf_counter()
-        detections, _ = self._finder.find(Frame(image, BGRA8, None, "bench", None))
-        return detections, (time.perf_counter() - start) * 1e3
+
+def _runners(dictionary: str, settings: Settings) -> dict[str, _Runner]:
+    """OpenCV's default the way a user runs it, and the service's detector as it runs it."""
+    detector = make_detector(
+        settings.detector, dictionary, full_scan_period=settings.full_scan_period
+    )
+    return {
+        "opencv": bench.Baseline(dictionary),
+        "service": bench.Project(dictionary, detector, settings.min_tag_side_px),
+    }
 
 
 WHO: Final = ("opencv", "service")
@@ -309,7 +298,7 @@ class _Streams:
 
     def pair(self, key: str, dictionary: str) -> dict[str, _Runner]:
         if key not in self.runners:
-            self.runners[key] = {w: _Runner(w, dictionary, self.settings) for w in WHO}
+            self.runners[key] = _runners(dictionary, self.settings)
         return self.runners[key]
 
 

@@ -86,7 +86,7 @@ from zenoh_perception.bench.soak import start_service, stop_service
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.tracking import tracking_counters
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.frames import ENCODINGS, Frame, RawFrameMeta
 from zenoh_perception.pipeline import TagFinder
@@ -309,14 +309,18 @@ class Baseline:
 
 
 class Project:
-    """The service's default detector (one per frame set, like one per stream) run on the BGRA
-    frame as the service's pipeline runs it (:class:`TagFinder`: grey conversion included)."""
+    """A service detector (default: ``tracking``; one per frame set, like one per stream) run
+    on the BGRA frame as the service's pipeline runs it (:class:`TagFinder`: grey conversion
+    included, tags shorter than ``min_side_px`` dropped)."""
 
-    name = "tracking"
-
-    def __init__(self, dictionary: str = DICTIONARY) -> None:
-        self.detector = make_detector("tracking", dictionary)
-        self._finder = TagFinder(self.detector)
+    def __init__(
+        self,
+        dictionary: str = DICTIONARY,
+        detector: Detector | None = None,
+        min_side_px: float = 0.0,
+    ) -> None:
+        self.detector = make_detector("tracking", dictionary) if detector is None else detector
+        self._finder = TagFinder(self.detector, min_side_px)
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
