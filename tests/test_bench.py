@@ -13,7 +13,6 @@ import cv2
 import numpy as np
 import pytest
 
-from zenoh_perception import cli
 from zenoh_perception.bench.detectors import (
     E2E_DETECTORS,
     FLOOR,
@@ -27,6 +26,7 @@ from zenoh_perception.bench.detectors import (
     lockstep,
     score,
 )
+from zenoh_perception.cli import main as cli
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.scene import CameraModel, Effects, MarkerPose, SceneGenerator
 

@@ -27,12 +27,12 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
 )
-from zenoh_perception import cli
 from zenoh_perception.bench._loopback import loopback_endpoint
-from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
-from zenoh_perception.records import FrameRecord, TagCodec, decode_record
+from zenoh_perception.cli import main as cli
 from zenoh_perception.scene import render_markers
-from zenoh_perception.selection import NO_TAG
+from zenoh_perception.tags.selection import NO_TAG
+from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 
 W, H = 1280, 720
 

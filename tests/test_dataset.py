@@ -12,7 +12,6 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from zenoh_perception import cli
 from zenoh_perception.bench.dataset import (
     BUCKETS,
     DatasetError,
@@ -23,6 +22,7 @@ from zenoh_perception.bench.dataset import (
     load_manifest,
     size_bucket,
 )
+from zenoh_perception.cli import main as cli
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings

@@ -18,14 +18,14 @@ import pytest
 import zenoh
 
 from tests.helpers import Collector, open_session, query_status, wait_for_subscriber, wait_until
-from zenoh_perception.debug_image import annotate as real_annotate
-from zenoh_perception.debug_image import encode_compressed_image as real_encode
-from zenoh_perception.frames import RawFrameMeta
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE
-from zenoh_perception.records import TagCodec, decode_record
 from zenoh_perception.scene import render_markers
-from zenoh_perception.service import PerceptionService
+from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.debug_image import annotate as real_annotate
+from zenoh_perception.wire.debug_image import encode_compressed_image as real_encode
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE
+from zenoh_perception.wire.records import TagCodec, decode_record
 
 Pixels = npt.NDArray[np.uint8]
 
@@ -85,8 +85,8 @@ def rig(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[_Rig]:
 
     # The service calls these through its module globals: patch them there (a test may patch
     # annotate again to make it fail).
-    monkeypatch.setattr("zenoh_perception.service.annotate", annotate)
-    monkeypatch.setattr("zenoh_perception.service.encode_compressed_image", encode)
+    monkeypatch.setattr("zenoh_perception.service.node.annotate", annotate)
+    monkeypatch.setattr("zenoh_perception.service.node.encode_compressed_image", encode)
     # No rate cap in the way: every watched frame yields a debug image.
     settings = Settings(stats_interval_s=0.0, debug_image_max_hz=1000.0)
     with (
@@ -181,7 +181,7 @@ def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.Mon
         encoded.append(1)
         return real_encode(*args, **kwargs)
 
-    monkeypatch.setattr("zenoh_perception.service.encode_compressed_image", encode)
+    monkeypatch.setattr("zenoh_perception.service.node.encode_compressed_image", encode)
     settings = Settings(stats_interval_s=0.0, debug_image=False)
     with (
         open_session(listen=[endpoint]) as service_side,
@@ -240,7 +240,7 @@ def test_a_failing_debug_image_is_a_counted_processing_error_not_a_dead_worker(
             raise cv2.error(msg)
         return real_annotate(*args, **kwargs)
 
-    monkeypatch.setattr("zenoh_perception.service.annotate", annotate_failing_once)
+    monkeypatch.setattr("zenoh_perception.service.node.annotate", annotate_failing_once)
     viewer = Collector(rig.camera, DEBUG_KEY)
     _wait_watched(rig.camera, watched=True)
     rig.send_and_wait()  # its tag and record are out before the debug image fails

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from zenoh_perception.demo import agreement
+from zenoh_perception.camera.demo import agreement
 from zenoh_perception.scene import CameraModel, Effects, MarkerPose, SceneGenerator
 
 

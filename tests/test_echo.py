@@ -5,9 +5,9 @@ from __future__ import annotations
 import io
 import json
 
-from zenoh_perception import echo
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.echo import Gap, SeqGaps
+from zenoh_perception.cli import echo
+from zenoh_perception.cli.echo import Gap, SeqGaps
 
 
 def test_consecutive_seqs_have_no_gap() -> None:

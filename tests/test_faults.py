@@ -39,14 +39,14 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception import service as service_module
 from zenoh_perception.bench.flood import MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.records import TagCodec, decode_record
-from zenoh_perception.scene import RESOLUTIONS
-from zenoh_perception.service import PerceptionService
+from zenoh_perception.resolutions import RESOLUTIONS
+from zenoh_perception.service import node as service_module
+from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.records import TagCodec, decode_record
 
 FRAMES = "zed/left/image"
 # Test cameras block rather than let Zenoh drop a large frame when the machine is busy (with
@@ -322,7 +322,7 @@ def test_connection_retries_are_logged_at_most_once_per_interval(
     endpoint: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Every retry of a client whose router is down is one log line without the rate limit."""
-    caplog.set_level(logging.WARNING, logger="zenoh_perception.service")
+    caplog.set_level(logging.WARNING, logger="zenoh_perception.service.node")
     attempts: list[int] = []
 
     def refuse(_conf: zenoh.Config) -> zenoh.Session:

@@ -21,7 +21,7 @@ from zenoh_perception.errors import (
     TooManyPixelsError,
     UnsupportedEncodingError,
 )
-from zenoh_perception.frames import (
+from zenoh_perception.wire.frames import (
     ENCODINGS,
     MAX_ATTACHMENT_BYTES,
     MAX_STAMP_NS,
@@ -33,7 +33,7 @@ from zenoh_perception.frames import (
     encode_image_cdr,
     to_gray,
 )
-from zenoh_perception.messages import TYPESTORE, header
+from zenoh_perception.wire.messages import TYPESTORE, header
 
 
 def _pixels(height: int, width: int, channels: int, seed: int = 0) -> np.ndarray:

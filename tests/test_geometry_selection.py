@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from zenoh_perception.errors import IntrinsicsError
-from zenoh_perception.geometry import (
+from zenoh_perception.tags.geometry import (
     check_intrinsics,
     closeness_from_area,
     closeness_from_distance,
@@ -18,7 +18,7 @@ from zenoh_perception.geometry import (
     polygon_area,
     tag_center,
 )
-from zenoh_perception.selection import (
+from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
     Policy,

@@ -30,8 +30,8 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception.bench.flood import marker_frame, raw_attachment
-from zenoh_perception.records import decode_record
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.records import decode_record
 
 FRAMES = "zed/left/image"
 _BLOCK = zenoh.CongestionControl.BLOCK

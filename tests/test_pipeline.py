@@ -6,10 +6,10 @@ import tracemalloc
 
 import numpy as np
 
-from zenoh_perception.frames import RawFrameMeta, decode_raw_frame
 from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import RawFrameMeta, decode_raw_frame
 
 
 def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:

@@ -12,11 +12,11 @@ import msgpack
 import pytest
 
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.frames import RawFrameMeta, decode_attachment
-from zenoh_perception.mailbox import LatestMailbox
-from zenoh_perception.records import FrameRecord, TagCodec, decode_record, f32
-from zenoh_perception.selection import NO_TAG, Metric, TagObservation
-from zenoh_perception.stats import LogGate, ServiceStats
+from zenoh_perception.service.mailbox import LatestMailbox
+from zenoh_perception.service.stats import LogGate, ServiceStats
+from zenoh_perception.tags.selection import NO_TAG, Metric, TagObservation
+from zenoh_perception.wire.frames import RawFrameMeta, decode_attachment
+from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record, f32
 
 SCHEMAS = Path(__file__).resolve().parent.parent / "schemas"
 
@@ -239,7 +239,7 @@ def test_log_gate_admits_once_per_interval_and_reports_suppressed() -> None:
 def test_log_values_cannot_break_a_line_or_forge_a_key() -> None:
     import logging
 
-    from zenoh_perception.logs import KeyValueFormatter, kv
+    from zenoh_perception.service.logs import KeyValueFormatter, kv
 
     line = kv(reason="bad_cdr", detail='say "hi"\nlevel=ERROR', empty="")
     assert line == 'reason=bad_cdr detail="say \\"hi\\"\\nlevel=ERROR" empty=""'

@@ -24,15 +24,7 @@ import zenoh
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from tests.helpers import Collector, loopback_config, open_session, running_cli
-from zenoh_perception.frames import (
-    decode_attachment,
-    decode_image_cdr,
-    decode_raw_frame,
-    encode_image_cdr,
-)
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE
-from zenoh_perception.records import decode_record
-from zenoh_perception.replay import (
+from zenoh_perception.camera.replay import (
     Pacer,
     Pacing,
     ProgressBar,
@@ -40,10 +32,7 @@ from zenoh_perception.replay import (
     main,
     render_progress,
 )
-from zenoh_perception.scene import render_markers
-from zenoh_perception.service import PerceptionService
-from zenoh_perception.settings import Settings
-from zenoh_perception.sources import (
+from zenoh_perception.camera.sources import (
     BagSource,
     Frames,
     ImageSequenceSource,
@@ -54,6 +43,17 @@ from zenoh_perception.sources import (
     list_images,
     open_source,
 )
+from zenoh_perception.scene import render_markers
+from zenoh_perception.service.node import PerceptionService
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import (
+    decode_attachment,
+    decode_image_cdr,
+    decode_raw_frame,
+    encode_image_cdr,
+)
+from zenoh_perception.wire.messages import COMPRESSED_IMAGE_TYPE, IMAGE_TYPE, TYPESTORE
+from zenoh_perception.wire.records import decode_record
 
 Pixels = npt.NDArray[np.uint8]
 

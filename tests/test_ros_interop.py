@@ -20,8 +20,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tests.helpers import REPO
-from zenoh_perception.frames import ENCODINGS, decode_image_cdr, encode_image_cdr, to_gray
-from zenoh_perception.messages import (
+from zenoh_perception.tags.selection import NO_TAG, TagMessage
+from zenoh_perception.wire.frames import ENCODINGS, decode_image_cdr, encode_image_cdr, to_gray
+from zenoh_perception.wire.messages import (
     IMAGE_TYPE,
     STARTER_PROJECT_TAG_MSG,
     TYPESTORE,
@@ -29,8 +30,7 @@ from zenoh_perception.messages import (
     make_typestore,
     tag_type_name,
 )
-from zenoh_perception.records import TAG_CDR_SIZE, TagCodec
-from zenoh_perception.selection import NO_TAG, TagMessage
+from zenoh_perception.wire.records import TAG_CDR_SIZE, TagCodec
 
 Pixels = npt.NDArray[np.uint8]
 

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene import (
-    RESOLUTIONS,
     CameraModel,
     DistractorPose,
     Effects,

@@ -334,13 +334,14 @@ def test_a_shadow_darkens_part_of_the_tag(seed: int, depth: float, soft: float) 
     ratio = (after[:, :, 1] + 1.0) / (before[:, :, 1] + 1.0)
     assert np.all(ratio <= 1.0 + 1e-9)  # a shadow only takes light away
     on_tag = ratio[inside]
-    # it crosses the tag: part of it in full shadow, part of it lit (fully so when the edge is
-    # hard; a soft edge reaches further, but the lit side keeps most of its light)
-    assert (np.abs(on_tag - (1.0 - depth)) < 0.06).mean() > 0.02
+    # it crosses the tag: part of it in shadow, part of it lit. A hard edge gives full shadow
+    # and full light; a soft edge spreads both, so only the deeper and the lighter half are
+    # sure to be on the tag (its full depth may lie beside it).
     if soft == 0.0:
+        assert (np.abs(on_tag - (1.0 - depth)) < 0.06).mean() > 0.02
         assert (on_tag > 0.99).mean() > 0.05
     else:
-        assert on_tag.max() > 1.0 - 0.5 * depth
+        assert on_tag.min() < 1.0 - 0.5 * depth < on_tag.max()
     assert after[:, :, 1][inside].mean() < before[:, :, 1][inside].mean()
 
 

@@ -34,9 +34,9 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
 )
-from zenoh_perception.frames import RawFrameMeta
-from zenoh_perception.records import TagCodec, decode_record
 from zenoh_perception.scene import render_markers
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.records import TagCodec, decode_record
 
 _CONFIG_DIR = REPO / "config" / "secure"
 _PROFILE_DIRS = {"mtls": _CONFIG_DIR, "usrpwd": _CONFIG_DIR / "usrpwd"}

@@ -25,13 +25,13 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.frames import RawFrameMeta, encode_image_cdr
-from zenoh_perception.messages import CAMERA_INFO_TYPE, TYPESTORE
-from zenoh_perception.records import TagCodec, decode_record, f32
 from zenoh_perception.scene import render_markers
-from zenoh_perception.selection import TagMessage
-from zenoh_perception.service import PerceptionService, run
+from zenoh_perception.service.node import PerceptionService, run
 from zenoh_perception.settings import Settings
+from zenoh_perception.tags.selection import TagMessage
+from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, TYPESTORE
+from zenoh_perception.wire.records import TagCodec, decode_record, f32
 
 WIDTH, HEIGHT = 640, 480
 
@@ -411,7 +411,7 @@ def test_implausible_camera_info_is_counted_and_ignored(endpoint: str) -> None:
 def test_camera_info_changes_are_logged_at_most_once_per_interval(
     endpoint: str, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, logger="zenoh_perception.service")
+    caplog.set_level(logging.INFO, logger="zenoh_perception.service.node")
     settings = Settings(
         camera_info_key="zed/left/camera_info",
         tag_size_m=0.2,

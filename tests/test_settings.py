@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from zenoh_perception.errors import SettingsError
+from zenoh_perception.service.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
 from zenoh_perception.settings import (
     BOUNDS,
     MAX_SETTINGS_FILE_BYTES,
@@ -23,7 +24,6 @@ from zenoh_perception.settings import (
     settings_from_args,
     settings_from_mapping,
 )
-from zenoh_perception.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config" / "perception.toml"

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from tests.helpers import wait_for_subscriber
-from zenoh_perception.shm import ShmPutter, ShmUnavailableError
+from zenoh_perception.camera.shm import ShmPutter, ShmUnavailableError
 
 KEY = "shm/test"
 
@@ -147,7 +147,7 @@ def test_without_shared_memory_frames_go_as_plain_puts(
     receiver = Receiver(session)
     wait_for_subscriber(publisher)
     putter = ShmPutter(provider_factory=_no_shm)
-    with caplog.at_level(logging.WARNING, logger="zenoh_perception.shm"):
+    with caplog.at_level(logging.WARNING, logger="zenoh_perception.camera.shm"):
         for i in range(3):
             payload = bytes([i]) * 50_000
             assert not putter.put(publisher, payload, attachment=b"a")

@@ -2,6 +2,6 @@
 
 import sys
 
-from zenoh_perception.cli import main
+from zenoh_perception.cli.main import main
 
 sys.exit(main())

@@ -8,6 +8,8 @@ The other errors the service counts at run time (:class:`CameraInfoError`,
 
 from __future__ import annotations
 
+import re
+
 
 class PerceptionError(Exception):
     """Base class of every error raised by zenoh-perception."""
@@ -100,3 +102,9 @@ class ProcessingError(PerceptionError):
 
 class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
+
+
+def zenoh_error_text(err: Exception) -> str:
+    """A Zenoh error as one readable line (without the Rust source locations it carries)."""
+    text = re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", str(err))
+    return " ".join(text.split())

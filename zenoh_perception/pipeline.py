@@ -10,23 +10,23 @@ import numpy as np
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
-from zenoh_perception.frames import Frame, to_gray
-from zenoh_perception.geometry import (
+from zenoh_perception.settings import Settings
+from zenoh_perception.tags.geometry import (
     closeness_from_area,
     closeness_from_distance,
     mean_side,
     polygon_area,
     tag_center,
 )
-from zenoh_perception.pose import Intrinsics, estimate_pose
-from zenoh_perception.selection import (
+from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.tags.selection import (
     Metric,
     Policy,
     TagMessage,
     TagObservation,
     selected_message,
 )
-from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import Frame, to_gray
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,7 @@ Validation (every failure is a :class:`SettingsError` naming the setting; the CL
   (``input_key``, ``camera_info_key``) may hold wildcards, every key the service publishes,
   serves or declares on must be concrete, and no output may intersect an input;
 - ``ros_package`` is a valid ROS package name;
-- intrinsics, when given, are plausible (:func:`~zenoh_perception.geometry.check_intrinsics`);
+- intrinsics, when given, are plausible (:func:`~zenoh_perception.tags.geometry.check_intrinsics`);
 - the settings file is a regular UTF-8 file of at most :data:`MAX_SETTINGS_FILE_BYTES`.
 """
 
@@ -32,15 +32,14 @@ from typing import Any, Final
 import zenoh
 
 from zenoh_perception.detect.types import DETECTORS, dictionary_name
-from zenoh_perception.errors import IntrinsicsError, SettingsError
-from zenoh_perception.geometry import (
+from zenoh_perception.errors import IntrinsicsError, SettingsError, zenoh_error_text
+from zenoh_perception.tags.geometry import (
     FOCAL_PX_MAX,
     FOCAL_PX_MIN,
     MAX_DIMENSION,
     check_intrinsics,
 )
-from zenoh_perception.selection import Metric, Policy
-from zenoh_perception.zenoh_args import zenoh_error_text
+from zenoh_perception.tags.selection import Metric, Policy
 
 METRICS = tuple(Metric)
 

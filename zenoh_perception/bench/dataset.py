@@ -48,8 +48,8 @@ from zenoh_perception.bench import detectors as bench
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, dictionary_name
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.geometry import mean_side
 from zenoh_perception.settings import Settings
+from zenoh_perception.tags.geometry import mean_side
 
 Image = npt.NDArray[np.uint8]
 

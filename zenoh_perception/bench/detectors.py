@@ -36,7 +36,7 @@ default), each with service processes of their own (so each pass starts as cold 
 does, tracks and caches included), and the passes are pooled: the figure of one pass moves by
 several percent from run to run on a shared machine. Each pass's ratio is reported as well.
 By default the camera puts each frame from a Zenoh shared-memory buffer
-(:class:`~zenoh_perception.shm.ShmPutter`), as a camera on the service's machine does: the
+(:class:`~zenoh_perception.camera.shm.ShmPutter`), as a camera on the service's machine does: the
 frame is written into its buffer *before* the clock starts (a camera writes its image into its
 buffer anyway; the write time is reported as ``write_median_ms``), and the timed interval is
 ``put`` -> ``tag`` callback in the bench. ``--no-shm`` puts plain ``bytes`` instead, which
@@ -83,17 +83,17 @@ import zenoh
 from zenoh_perception import __version__
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.soak import start_service, stop_service
+from zenoh_perception.camera.shm import Loaded, ShmPutter
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.tracking import tracking_counters
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.frames import ENCODINGS, Frame, RawFrameMeta
 from zenoh_perception.pipeline import TagFinder
-from zenoh_perception.pose import Intrinsics, estimate_pose
-from zenoh_perception.scene import RESOLUTIONS as SCENE_RESOLUTIONS
+from zenoh_perception.resolutions import RESOLUTIONS as SCENE_RESOLUTIONS
 from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
-from zenoh_perception.shm import Loaded, ShmPutter
+from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta
 
 Image = npt.NDArray[np.uint8]
 Handler = Callable[[argparse.Namespace], int]

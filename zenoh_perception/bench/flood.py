@@ -39,11 +39,13 @@ from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.frames import RawFrameMeta
-from zenoh_perception.records import TagCodec, decode_record
-from zenoh_perception.scene import RESOLUTIONS
-from zenoh_perception.selection import TagMessage
-from zenoh_perception.status import query_status
+from zenoh_perception.resolutions import RESOLUTIONS
+from zenoh_perception.service.node import PerceptionService
+from zenoh_perception.service.status import query_status
+from zenoh_perception.settings import Settings
+from zenoh_perception.tags.selection import TagMessage
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.records import TagCodec, decode_record
 
 Pixels = npt.NDArray[np.uint8]
 
@@ -540,9 +542,6 @@ def run_load(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from zenoh_perception.service import PerceptionService  # noqa: PLC0415
-    from zenoh_perception.settings import Settings  # noqa: PLC0415
-
     parser = argparse.ArgumentParser(
         prog="python -m zenoh_perception.bench.flood", description=__doc__.split("\n\n")[0]
     )

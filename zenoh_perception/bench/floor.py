@@ -20,8 +20,8 @@ import msgpack
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config
-from zenoh_perception.records import TagCodec
-from zenoh_perception.selection import NO_TAG
+from zenoh_perception.tags.selection import NO_TAG
+from zenoh_perception.wire.records import TagCodec
 
 #: The record's timing fields, all zero: the floor does none of that work.
 _TIMING = dict.fromkeys(("latency_ms", "queue_ms", "decode_ms", "convert_ms", "detect_ms"), 0.0)

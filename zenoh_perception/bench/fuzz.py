@@ -53,7 +53,9 @@ from zenoh_perception.bench.flood import (
 )
 from zenoh_perception.bench.soak import start_service, stop_service
 from zenoh_perception.errors import FrameDecodeError
-from zenoh_perception.frames import (
+from zenoh_perception.service.node import PROCESSING_ERROR
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import (
     MAX_ATTACHMENT_BYTES,
     MAX_DIMENSION,
     check_payload_size,
@@ -61,8 +63,7 @@ from zenoh_perception.frames import (
     decode_raw_frame,
     encode_image_cdr,
 )
-from zenoh_perception.service import PROCESSING_ERROR
-from zenoh_perception.settings import Settings
+from zenoh_perception.wire.messages import IMAGE_TYPE, TYPESTORE
 
 OK: Final = "ok"
 
@@ -216,8 +217,6 @@ def gen_cdr_extended(rng: random.Random) -> Case:
 
 def gen_cdr_inconsistent(rng: random.Random) -> Case:
     """Well-formed CDR whose width/height/step/encoding/data disagree or are absurd."""
-    from zenoh_perception.messages import IMAGE_TYPE, TYPESTORE  # noqa: PLC0415
-
     types = TYPESTORE.types
     u32 = (0, 1, 2, 7, 16, MAX_DIMENSION, MAX_DIMENSION + 1, 2**31, 2**32 - 1)
     image = types[IMAGE_TYPE](

@@ -43,8 +43,8 @@ from zenoh_perception.bench.flood import (
     wait_status,
 )
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.records import decode_record
-from zenoh_perception.scene import RESOLUTIONS
+from zenoh_perception.resolutions import RESOLUTIONS
+from zenoh_perception.wire.records import decode_record
 
 _SEQ_SLOTS = 1 << 14  # put times kept for latency matching (~4.5 min at 60 Hz)
 

@@ -53,7 +53,6 @@ from zenoh_perception.scene._generator import (
 )
 from zenoh_perception.scene._geometry import (
     DEFAULT_HFOV_DEG,
-    RESOLUTIONS,
     CameraModel,
     MarkerPose,
     square_corners,
@@ -66,7 +65,6 @@ __all__ = [
     "CODE_DISTRACTOR_KINDS",
     "DEFAULT_HFOV_DEG",
     "DISTRACTOR_KINDS",
-    "RESOLUTIONS",
     "CameraEffects",
     "CameraModel",
     "CameraParams",

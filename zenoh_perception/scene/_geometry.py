@@ -9,15 +9,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene._errors import SceneError
-
-#: Named camera resolutions (width, height) of the ZED family.
-RESOLUTIONS: dict[str, tuple[int, int]] = {
-    "VGA": (640, 480),
-    "HD720": (1280, 720),
-    "HD1080": (1920, 1080),
-    "HD2K": (2208, 1242),
-}
 
 #: Default horizontal field of view (degrees), close to a ZED 2 at HD resolutions.
 DEFAULT_HFOV_DEG = 90.0

@@ -33,7 +33,6 @@ import cv2
 import zenoh
 
 from zenoh_perception import __version__
-from zenoh_perception.debug_image import annotate, encode_compressed_image
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import (
     CameraInfoError,
@@ -42,24 +41,25 @@ from zenoh_perception.errors import (
     ProcessingError,
     SessionError,
     SettingsError,
+    zenoh_error_text,
 )
-from zenoh_perception.frames import (
+from zenoh_perception.pipeline import Analysis, Pipeline
+from zenoh_perception.service.logs import kv
+from zenoh_perception.service.mailbox import LatestMailbox
+from zenoh_perception.service.stats import LogGate, ServiceStats
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
+from zenoh_perception.wire.frames import (
     Frame,
     check_payload_size,
     decode_image_cdr,
     decode_raw_frame,
     to_bgr,
 )
-from zenoh_perception.logs import kv
-from zenoh_perception.mailbox import LatestMailbox
-from zenoh_perception.pipeline import Analysis, Pipeline
-from zenoh_perception.pose import decode_camera_info
-from zenoh_perception.records import FrameRecord, TagCodec
-from zenoh_perception.settings import Settings
-from zenoh_perception.stats import LogGate, ServiceStats
-from zenoh_perception.zenoh_args import zenoh_error_text
+from zenoh_perception.wire.records import FrameRecord, TagCodec
 
-log = logging.getLogger("zenoh_perception.service")
+log = logging.getLogger("zenoh_perception.service.node")
 
 MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
 #: Rejection reason of a decoded frame the pipeline failed on (a detector bug, counted).

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE, header
-from zenoh_perception.selection import TagMessage, TagObservation
+from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE, header
 
 _OTHER = (0, 200, 255)  # BGR amber
 _SELECTED = (0, 255, 0)  # BGR green

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
 
-from zenoh_perception.geometry import distance_to_center
+from zenoh_perception.tags.geometry import distance_to_center
 
 
 class Policy(StrEnum):
@@ -31,7 +31,7 @@ class Policy(StrEnum):
 
 
 class Metric(StrEnum):
-    """What a closeness value was computed from (see :mod:`zenoh_perception.geometry`)."""
+    """What a closeness value was computed from (see :mod:`zenoh_perception.tags.geometry`)."""
 
     AREA = "area"
     DISTANCE = "distance"

@@ -1,6 +1,6 @@
 """``zenoh-perception replay PATH``: publish recorded frames into Zenoh as a camera would.
 
-The frames come from :mod:`zenoh_perception.sources` (rosbag2, video, images). This module
+The frames come from :mod:`zenoh_perception.camera.sources` (rosbag2, video, images). This module
 holds the pure pacing and progress-bar code, the Zenoh publishing loop (:func:`main`) and the
 ``replay`` subcommand's arguments (:func:`register`).
 
@@ -29,29 +29,26 @@ from collections.abc import Callable
 from contextlib import closing
 from dataclasses import dataclass
 from enum import StrEnum
-from pathlib import Path
 from typing import Final, TextIO
 
 import zenoh
 
-from zenoh_perception.errors import PayloadTooLargeError, SettingsError
-from zenoh_perception.frames import check_payload_size
-from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings, check_bound
-from zenoh_perception.shm import ShmPutter
-from zenoh_perception.signals import stop_on_signals
-from zenoh_perception.sources import (
-    DEFAULT_FRAME_ID,
-    DEFAULT_RATE_HZ,
+from zenoh_perception.camera.defaults import DEFAULT_KEY
+from zenoh_perception.camera.shm import ShmPutter
+from zenoh_perception.camera.sources import (
     FrameSource,
     ReplayError,
     SourceFrame,
-    open_source,
 )
-from zenoh_perception.zenoh_args import add_zenoh_arguments, open_zenoh, zenoh_config_from_args
+from zenoh_perception.errors import PayloadTooLargeError
+from zenoh_perception.service.zenoh_args import (
+    open_zenoh,
+)
+from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
+from zenoh_perception.wire.frames import check_payload_size
 
-log = logging.getLogger("zenoh_perception.replay")
+log = logging.getLogger("zenoh_perception.camera.replay")
 
-DEFAULT_KEY: Final = "zed/left/image"
 _RAW_ENCODING: Final = zenoh.Encoding.APPLICATION_OCTET_STREAM
 _CDR_ENCODING: Final = zenoh.Encoding.APPLICATION_CDR
 _WAIT_POLL_S: Final = 0.1
@@ -371,45 +368,6 @@ def main(
     return 0
 
 
-# -- command line ----------------------------------------------------------------------------
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError as err:
-        msg = f"{text!r} is not a number"
-        raise argparse.ArgumentTypeError(msg) from err
-    if not math.isfinite(value) or value <= 0:
-        msg = f"{text!r} is not a positive number"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _max_frame_bytes(text: str) -> int:
-    try:
-        value = int(text)
-        check_bound("max_frame_bytes", value)
-    except ValueError as err:
-        msg = f"{text!r} is not an integer"
-        raise argparse.ArgumentTypeError(msg) from err
-    except SettingsError as err:
-        raise argparse.ArgumentTypeError(str(err)) from err
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError as err:
-        msg = f"{text!r} is not an integer"
-        raise argparse.ArgumentTypeError(msg) from err
-    if value < 0:
-        msg = f"{text!r} is negative"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
 def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> ReplayOptions:
     if args.as_fast_as_possible:
         pacing = Pacing.ASAP
@@ -429,102 +387,3 @@ def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> Repla
         shm=args.shm,
         max_frame_bytes=args.max_frame_bytes,
     )
-
-
-def _cmd_replay(args: argparse.Namespace) -> int:
-    source = open_source(
-        args.path,
-        topic=args.topic,
-        image_rate_hz=args.rate if args.rate is not None else DEFAULT_RATE_HZ,
-        frame_id=args.frame_id,
-    )
-    options = options_from_args(args, stderr_is_tty=sys.stderr.isatty())
-    return main(zenoh_config_from_args(args), source, options, stop_on_signals())
-
-
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    """Add the ``replay`` subcommand to the CLI."""
-    parser = sub.add_parser(
-        "replay",
-        help="publish a rosbag2, a video or a folder of images as camera frames",
-        description=(
-            "Publish frames into Zenoh as a camera would. A rosbag2 (folder, .mcap or .db3) "
-            "sends the original sensor_msgs/Image CDR of one topic unchanged (as "
-            "zenoh-bridge-ros2dds does); a video or a folder of images (sorted by name) sends "
-            "raw BGRA with the msgpack attachment. Waits for a subscriber on the key first."
-        ),
-    )
-    parser.add_argument(
-        "path",
-        type=Path,
-        metavar="PATH",
-        help="rosbag2 folder, .mcap / .db3 file, video file, image folder or image file",
-    )
-    parser.add_argument(
-        "--key", default=DEFAULT_KEY, help=f"key to publish frames on (default: {DEFAULT_KEY})"
-    )
-    parser.add_argument(
-        "--topic",
-        default=None,
-        help="bag topic to replay (default: the only sensor_msgs/msg/Image topic, else "
-        "/zed/left/image)",
-    )
-    pace = parser.add_mutually_exclusive_group()
-    pace.add_argument(
-        "--rate",
-        type=_positive_float,
-        default=None,
-        metavar="HZ",
-        help="send at HZ frames per second (default: the recorded rate: bag times, video FPS; "
-        f"images {DEFAULT_RATE_HZ:g} Hz)",
-    )
-    pace.add_argument("--as-fast-as-possible", action="store_true", help="send without pacing")
-    parser.add_argument("--loop", action="store_true", help="start over at the end")
-    parser.add_argument(
-        "--limit",
-        type=_non_negative_int,
-        default=0,
-        metavar="N",
-        help="stop after N frames in total (default 0: no limit)",
-    )
-    parser.add_argument(
-        "--frame-id",
-        default=DEFAULT_FRAME_ID,
-        help=f"frame_id of video / image frames (default: {DEFAULT_FRAME_ID}; bags keep theirs)",
-    )
-    parser.add_argument(
-        "--progress",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="progress bar on stderr (default: only when stderr is a terminal)",
-    )
-    parser.add_argument(
-        "--shm",
-        action="store_true",
-        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's "
-        "machine would (no copy on put; plain puts, with a warning, where shared memory is "
-        "unavailable) (default: off)",
-    )
-    parser.add_argument(
-        "--max-frame-bytes",
-        type=_max_frame_bytes,
-        default=Settings().max_frame_bytes,
-        metavar="N",
-        help="largest frame payload sent, bytes: a larger frame stops the replay (exit 2); "
-        "match the service's max_frame_bytes (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--wait-for-subscriber",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="wait until the key has a subscriber before sending (default: on)",
-    )
-    parser.add_argument(
-        "--subscriber-timeout",
-        type=_positive_float,
-        default=None,
-        metavar="S",
-        help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
-    )
-    add_zenoh_arguments(parser)
-    parser.set_defaults(handler=_cmd_replay)

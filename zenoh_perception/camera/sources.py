@@ -28,15 +28,11 @@ import numpy.typing as npt
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, ReaderError
 
+from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_RATE_HZ, DEFAULT_TOPIC
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.frames import RawFrameMeta
-from zenoh_perception.messages import IMAGE_TYPE
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.messages import IMAGE_TYPE
 
-#: Topic preferred when a bag holds several sensor_msgs/msg/Image topics.
-DEFAULT_TOPIC: Final = "/zed/left/image"
-#: Frame rate of image sequences (and of videos that do not state theirs).
-DEFAULT_RATE_HZ: Final = 10.0
-DEFAULT_FRAME_ID: Final = "camera"
 BAG_SUFFIXES: Final = frozenset({".mcap", ".db3"})
 #: Files of an image folder that are read (case-insensitive); everything else is ignored.
 IMAGE_SUFFIXES: Final = frozenset(

@@ -34,10 +34,10 @@ import zenoh
 import zenoh.shm as zshm
 
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.logs import kv
-from zenoh_perception.stats import LogGate
+from zenoh_perception.service.logs import kv
+from zenoh_perception.service.stats import LogGate
 
-log = logging.getLogger("zenoh_perception.shm")
+log = logging.getLogger("zenoh_perception.camera.shm")
 
 #: Frames the provider holds by default: one being written, one in flight, one in the
 #: receiver's mailbox and one being processed.

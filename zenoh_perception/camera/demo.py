@@ -5,7 +5,7 @@ The camera is a rover driving toward tags on posts (``scene.SceneGenerator.drive
 on the input key exactly as a real camera would (raw BGRA + msgpack attachment, or
 sensor_msgs/Image CDR with ``--format cdr``). With ``--camera-only`` it only publishes, to feed a
 ``zenoh-perception run`` started elsewhere. With ``--shm`` it puts each frame from a Zenoh
-shared-memory buffer (:class:`~zenoh_perception.shm.ShmPutter`), as a camera on the service's
+shared-memory buffer (:class:`~zenoh_perception.camera.shm.ShmPutter`), as a camera on the service's
 machine would.
 
 A frame larger than the settings' ``max_frame_bytes`` is not sent: the demo refuses the
@@ -14,7 +14,6 @@ resolution at start (exit 2, with how to raise the limits), as the service would
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import sys
 import threading
@@ -25,15 +24,16 @@ from typing import Any, Final, TextIO
 import numpy as np
 import zenoh
 
-from zenoh_perception.echo import format_decoded_record
+from zenoh_perception.camera.shm import ShmPutter
 from zenoh_perception.errors import PayloadTooLargeError, SettingsError
-from zenoh_perception.frames import RawFrameMeta, check_payload_size, encode_image_cdr
-from zenoh_perception.records import decode_record
-from zenoh_perception.scene import RESOLUTIONS, CameraModel, MarkerTruth, Scene, SceneGenerator
-from zenoh_perception.service import PerceptionService, check_transport_limit
+from zenoh_perception.resolutions import RESOLUTIONS
+from zenoh_perception.scene import CameraModel, MarkerTruth, Scene, SceneGenerator
+from zenoh_perception.service.node import PerceptionService, check_transport_limit
+from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
-from zenoh_perception.shm import ShmPutter
-from zenoh_perception.zenoh_args import open_zenoh
+from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encode_image_cdr
+from zenoh_perception.wire.records import decode_record
+from zenoh_perception.wire.text import format_decoded_record
 
 DRIVE_SECONDS = 12.0
 
@@ -235,24 +235,3 @@ def main(
             finally:
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
     return 0
-
-
-def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
-    group = parser.add_argument_group("demo camera")
-    group.add_argument(
-        "--resolution", choices=tuple(RESOLUTIONS), default="VGA", help="camera resolution"
-    )
-    group.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
-    group.add_argument(
-        "--format", choices=("raw", "cdr"), default="raw", help="raw+attachment or Image CDR"
-    )
-    group.add_argument(
-        "--camera-only", action="store_true", help="only publish frames (feed a separate run)"
-    )
-    group.add_argument("--limit", type=int, default=0, help="stop after N frames (0: never)")
-    group.add_argument(
-        "--shm",
-        action="store_true",
-        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
-        "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
-    )

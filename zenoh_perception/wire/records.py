@@ -18,14 +18,14 @@ import msgpack
 import numpy as np
 
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.messages import (
+from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.messages import (
     DEFAULT_ROS_PACKAGE,
     deserialize,
     make_typestore,
     tag_type_name,
     unpack_msgpack_map,
 )
-from zenoh_perception.selection import TagMessage, TagObservation
 
 TAG_CDR_SIZE: Final = 20
 MESSAGE_FIELDS: Final = (

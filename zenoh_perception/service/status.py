@@ -1,16 +1,13 @@
-"""``zenoh-perception status``: query the service's status queryable and print its JSON."""
+"""Asking running services for their status: the client side of the status queryable."""
 
 from __future__ import annotations
 
 import json
-import sys
 import threading
 import time
-from typing import Any, TextIO
+from typing import Any
 
 import zenoh
-
-from zenoh_perception.zenoh_args import open_zenoh
 
 
 def query_status(
@@ -47,26 +44,3 @@ def query_status(
 
 #: Pause between two queries of :func:`query_status`.
 REQUERY_S = 0.1
-
-
-def main(
-    conf: zenoh.Config,
-    *,
-    key: str = "perception/status",
-    timeout: float = 2.0,
-    out: TextIO = sys.stdout,
-) -> int:
-    """Print the status JSON; 0 when at least one service answered, 1 otherwise.
-
-    Raises:
-        SessionError: the Zenoh session cannot be opened.
-
-    """
-    with open_zenoh(conf) as session:
-        replies = query_status(session, key, timeout)
-    if not replies:
-        print(f"no perception service answered on {key!r} within {timeout} s", file=sys.stderr)
-        return 1
-    for reply in replies:
-        print(json.dumps(reply, indent=2), file=out)
-    return 0

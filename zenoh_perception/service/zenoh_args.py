@@ -9,18 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 from pathlib import Path
 
 import zenoh
 
-from zenoh_perception.errors import SessionError, SettingsError
-
-
-def zenoh_error_text(err: Exception) -> str:
-    """A Zenoh error as one readable line (without the Rust source locations it carries)."""
-    text = re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", str(err))
-    return " ".join(text.split())
+from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
 
 
 def open_zenoh(conf: zenoh.Config) -> zenoh.Session:

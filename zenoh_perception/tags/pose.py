@@ -12,10 +12,6 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.errors import CameraInfoError
-from zenoh_perception.geometry import check_intrinsics
-from zenoh_perception.messages import CAMERA_INFO_TYPE, deserialize
-
 
 @dataclass(frozen=True, slots=True)
 class Intrinsics:
@@ -73,22 +69,3 @@ def estimate_pose(
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
         return None
     return Pose((float(r[0]), float(r[1]), float(r[2])), (float(t[0]), float(t[1]), float(t[2])))
-
-
-def decode_camera_info(payload: bytes | memoryview) -> Intrinsics:
-    """Intrinsics (K matrix) from a sensor_msgs/msg/CameraInfo CDR sample.
-
-    Raises:
-        CameraInfoError: not a CameraInfo sample, or a K matrix that is not 3 x 3.
-        IntrinsicsError: intrinsics outside plausible bounds for the sample's image size
-            (see :func:`~zenoh_perception.geometry.check_intrinsics`).
-
-    """
-    msg = deserialize(payload, CAMERA_INFO_TYPE, CameraInfoError)
-    k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
-    if k.size != 9:
-        text = f"CameraInfo K has {k.size} values, not 9"
-        raise CameraInfoError(text)
-    fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
-    check_intrinsics(fx, fy, cx, cy, width=int(msg.width), height=int(msg.height))
-    return Intrinsics(fx, fy, cx, cy)

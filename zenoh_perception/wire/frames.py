@@ -22,7 +22,6 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception import geometry
 from zenoh_perception.errors import (
     AttachmentError,
     DimensionError,
@@ -33,7 +32,8 @@ from zenoh_perception.errors import (
     TooManyPixelsError,
     UnsupportedEncodingError,
 )
-from zenoh_perception.messages import (
+from zenoh_perception.tags import geometry
+from zenoh_perception.wire.messages import (
     IMAGE_TYPE,
     TYPESTORE,
     deserialize,

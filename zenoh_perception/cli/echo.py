@@ -20,43 +20,10 @@ from typing import Any, NamedTuple, TextIO
 import zenoh
 
 from zenoh_perception.errors import MessageDecodeError
-from zenoh_perception.records import TagCodec, decode_record
+from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import check_ros_package
-from zenoh_perception.zenoh_args import open_zenoh
-
-
-def format_tag(key: str, payload: bytes, codec: TagCodec, *, as_json: bool) -> str:
-    msg = codec.decode(payload)
-    if as_json:
-        return json.dumps(
-            {
-                "key": key,
-                "tag_id": msg.tag_id,
-                "x_tag_center_pixel": msg.x_tag_center_pixel,
-                "y_tag_center_pixel": msg.y_tag_center_pixel,
-                "closeness_metric": msg.closeness_metric,
-            }
-        )
-    return (
-        f"[{key}] tag_id={msg.tag_id} x={msg.x_tag_center_pixel:.2f} "
-        f"y={msg.y_tag_center_pixel:.2f} closeness={msg.closeness_metric:.4f}"
-    )
-
-
-def format_decoded_record(key: str, record: dict[str, Any], *, as_json: bool) -> str:
-    if as_json:
-        return json.dumps({"key": key, **record})
-    ids = ",".join(str(tag.get("tag_id")) for tag in record["tags"]) or "-"
-    latency = record["timing"].get("latency_ms", float("nan"))
-    return (
-        f"[{key}] seq={record['seq']} stamp_ns={record['stamp_ns']} "
-        f"{record['width']}x{record['height']} tags={ids} "
-        f"selected={record['selected']['tag_id']} latency_ms={latency:.2f}"
-    )
-
-
-def format_record(key: str, payload: bytes, *, as_json: bool) -> str:
-    return format_decoded_record(key, decode_record(payload), as_json=as_json)
+from zenoh_perception.wire.records import TagCodec, decode_record
+from zenoh_perception.wire.text import format_decoded_record, format_tag
 
 
 @dataclass(frozen=True, slots=True)

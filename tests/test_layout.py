@@ -1,0 +1,101 @@
+"""The package's layers: imports flow one way, and the command line stays light."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "zenoh_perception"
+
+# Bottom to top: a module may import from its own layer and the layers below it.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("zenoh_perception", "zenoh_perception.errors", "zenoh_perception.resolutions"),
+    ("zenoh_perception.tags",),
+    ("zenoh_perception.wire",),
+    ("zenoh_perception.detect",),
+    ("zenoh_perception.scene",),
+    ("zenoh_perception.settings",),
+    ("zenoh_perception.pipeline",),
+    ("zenoh_perception.service",),
+    ("zenoh_perception.camera",),
+    ("zenoh_perception.bench",),
+    ("zenoh_perception.cli", "zenoh_perception.__main__"),
+)
+# The one place that imports inside functions: each subcommand's module, when it runs.
+LAZY = "zenoh_perception.cli.commands"
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _layer(module: str) -> int:
+    best = (-1, -1)  # (length of the matching prefix, layer)
+    for index, prefixes in enumerate(LAYERS):
+        for prefix in prefixes:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best[0]:
+                best = (len(prefix), index)
+    assert best[1] >= 0, f"{module} is in no layer"
+    return best[1]
+
+
+def _imports(path: Path) -> list[tuple[str, bool]]:
+    """(imported module, imported at the top level) for each zenoh_perception import."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    top = {id(node) for node in tree.body}
+    found: list[tuple[str, bool]] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module]
+            if node.module == "zenoh_perception":
+                names = [f"zenoh_perception.{alias.name}" for alias in node.names]
+        elif isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        else:
+            continue
+        found += [(n, id(node) in top) for n in names if n.split(".")[0] == "zenoh_perception"]
+    return found
+
+
+MODULES = sorted(PACKAGE.rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_imports_flow_down_the_layers(path: Path) -> None:
+    module = _module_name(path)
+    for imported, at_top in _imports(path):
+        if imported == "zenoh_perception.__version__":
+            continue
+        assert _layer(imported) <= _layer(module), f"{module} imports {imported} from above"
+        assert at_top or module == LAZY, f"{module} imports {imported} inside a function"
+
+
+def test_layer_check_catches_an_upward_import() -> None:
+    assert _layer("zenoh_perception.service.node") > _layer("zenoh_perception.wire.frames")
+    assert _layer("zenoh_perception.detect.opencv") < _layer("zenoh_perception.settings")
+
+
+def test_the_command_line_loads_no_opencv_scene_or_bench() -> None:
+    code = (
+        "import sys, zenoh_perception.cli.main; "
+        "print(' '.join(m for m in sys.modules if m.split('.')[0] in "
+        "('cv2', 'zenoh_perception')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert "zenoh_perception.cli.main" in out
+    heavy = [m for m in out if m == "cv2" or m.split(".")[1:2] in (["scene"], ["bench"])]
+    heavy += [m for m in out if m in ("zenoh_perception.service.node", "zenoh_perception.pipeline")]
+    assert heavy == []
+
+
+def test_settings_import_no_detector() -> None:
+    code = "import sys, zenoh_perception.settings; print('cv2' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

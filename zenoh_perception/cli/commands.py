@@ -1,0 +1,358 @@
+"""Each subcommand's flags, and a handler that imports the subcommand's module only when it runs.
+
+``import zenoh_perception.cli.main`` stays light (no OpenCV, no scene generator, no bench):
+the Docker healthcheck runs ``status`` every few seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY, DEFAULT_RATE_HZ
+from zenoh_perception.errors import SettingsError
+from zenoh_perception.resolutions import RESOLUTIONS
+from zenoh_perception.service.signals import stop_on_signals
+from zenoh_perception.service.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+from zenoh_perception.settings import (
+    Settings,
+    add_settings_arguments,
+    check_bound,
+    load_settings,
+    settings_from_args,
+)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    conf = zenoh_config_from_args(args)
+    from zenoh_perception.service import node  # noqa: PLC0415
+
+    return node.run(conf, settings, stop_on_signals())
+
+
+def _cmd_echo(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import echo  # noqa: PLC0415
+
+    return echo.main(
+        zenoh_config_from_args(args),
+        tag_key=args.tag_key,
+        record_key=args.record_key,
+        ros_package=args.ros_package,
+        records=not args.tags_only,
+        as_json=args.json,
+        count=args.count,
+        timeout=args.timeout,
+        stop=stop_on_signals(),
+    )
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import status  # noqa: PLC0415
+
+    return status.main(zenoh_config_from_args(args), key=args.status_key, timeout=args.timeout)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    if args.fps <= 0:
+        msg = "--fps must be positive"
+        raise SettingsError(msg)
+    from zenoh_perception.camera import demo  # noqa: PLC0415
+
+    return demo.main(
+        zenoh_config_from_args(args),
+        settings_from_args(args),
+        resolution=args.resolution,
+        fps=args.fps,
+        cdr=args.format == "cdr",
+        camera_only=args.camera_only,
+        limit=args.limit,
+        shm=args.shm,
+        stop=stop_on_signals(),
+    )
+
+
+def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "run",
+        help="run the perception service",
+        description="Subscribe camera frames, detect ArUco tags, publish tag + record per frame.",
+    )
+    add_zenoh_arguments(parser)
+    add_settings_arguments(parser)
+    parser.set_defaults(handler=_cmd_run)
+
+
+def _add_demo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "demo",
+        help="synthetic camera + service + echo in one process (no camera needed)",
+        description="A rover driving toward synthetic tags, the service, and its output.",
+    )
+    _add_demo_arguments(parser)
+    add_zenoh_arguments(parser)
+    add_settings_arguments(parser)
+    parser.set_defaults(handler=_cmd_demo)
+
+
+def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser("echo", help="print decoded tags and records")
+    add_zenoh_arguments(parser)
+    parser.add_argument("--tag-key", default="tag", help="tag key (default: tag)")
+    parser.add_argument(
+        "--record-key", default="perception/tags", help="record key (default: perception/tags)"
+    )
+    parser.add_argument("--ros-package", default="mrover", help="ROS package of the tag type")
+    parser.add_argument("--tags-only", action="store_true", help="do not print records")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.add_argument("--count", type=int, default=0, help="exit after N lines (0: never)")
+    parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
+    parser.set_defaults(handler=_cmd_echo)
+
+
+def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
+    add_zenoh_arguments(parser)
+    parser.add_argument("--status-key", default="perception/status", help="status key")
+    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    parser.set_defaults(handler=_cmd_status)
+
+
+def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("demo camera")
+    group.add_argument(
+        "--resolution", choices=tuple(RESOLUTIONS), default="VGA", help="camera resolution"
+    )
+    group.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
+    group.add_argument(
+        "--format", choices=("raw", "cdr"), default="raw", help="raw+attachment or Image CDR"
+    )
+    group.add_argument(
+        "--camera-only", action="store_true", help="only publish frames (feed a separate run)"
+    )
+    group.add_argument("--limit", type=int, default=0, help="stop after N frames (0: never)")
+    group.add_argument(
+        "--shm",
+        action="store_true",
+        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
+        "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
+    )
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError as err:
+        msg = f"{text!r} is not a number"
+        raise argparse.ArgumentTypeError(msg) from err
+    if not math.isfinite(value) or value <= 0:
+        msg = f"{text!r} is not a positive number"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _max_frame_bytes(text: str) -> int:
+    try:
+        value = int(text)
+        check_bound("max_frame_bytes", value)
+    except ValueError as err:
+        msg = f"{text!r} is not an integer"
+        raise argparse.ArgumentTypeError(msg) from err
+    except SettingsError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
+    return value
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError as err:
+        msg = f"{text!r} is not an integer"
+        raise argparse.ArgumentTypeError(msg) from err
+    if value < 0:
+        msg = f"{text!r} is negative"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from zenoh_perception.camera import replay  # noqa: PLC0415
+    from zenoh_perception.camera.sources import open_source  # noqa: PLC0415
+
+    source = open_source(
+        args.path,
+        topic=args.topic,
+        image_rate_hz=args.rate if args.rate is not None else DEFAULT_RATE_HZ,
+        frame_id=args.frame_id,
+    )
+    options = replay.options_from_args(args, stderr_is_tty=sys.stderr.isatty())
+    return replay.main(zenoh_config_from_args(args), source, options, stop_on_signals())
+
+
+def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``replay`` subcommand to the CLI."""
+    parser = sub.add_parser(
+        "replay",
+        help="publish a rosbag2, a video or a folder of images as camera frames",
+        description=(
+            "Publish frames into Zenoh as a camera would. A rosbag2 (folder, .mcap or .db3) "
+            "sends the original sensor_msgs/Image CDR of one topic unchanged (as "
+            "zenoh-bridge-ros2dds does); a video or a folder of images (sorted by name) sends "
+            "raw BGRA with the msgpack attachment. Waits for a subscriber on the key first."
+        ),
+    )
+    parser.add_argument(
+        "path",
+        type=Path,
+        metavar="PATH",
+        help="rosbag2 folder, .mcap / .db3 file, video file, image folder or image file",
+    )
+    parser.add_argument(
+        "--key", default=DEFAULT_KEY, help=f"key to publish frames on (default: {DEFAULT_KEY})"
+    )
+    parser.add_argument(
+        "--topic",
+        default=None,
+        help="bag topic to replay (default: the only sensor_msgs/msg/Image topic, else "
+        "/zed/left/image)",
+    )
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=None,
+        metavar="HZ",
+        help="send at HZ frames per second (default: the recorded rate: bag times, video FPS; "
+        f"images {DEFAULT_RATE_HZ:g} Hz)",
+    )
+    pace.add_argument("--as-fast-as-possible", action="store_true", help="send without pacing")
+    parser.add_argument("--loop", action="store_true", help="start over at the end")
+    parser.add_argument(
+        "--limit",
+        type=_non_negative_int,
+        default=0,
+        metavar="N",
+        help="stop after N frames in total (default 0: no limit)",
+    )
+    parser.add_argument(
+        "--frame-id",
+        default=DEFAULT_FRAME_ID,
+        help=f"frame_id of video / image frames (default: {DEFAULT_FRAME_ID}; bags keep theirs)",
+    )
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="progress bar on stderr (default: only when stderr is a terminal)",
+    )
+    parser.add_argument(
+        "--shm",
+        action="store_true",
+        help="put frames from a Zenoh shared-memory buffer, as a camera on the service's "
+        "machine would (no copy on put; plain puts, with a warning, where shared memory is "
+        "unavailable) (default: off)",
+    )
+    parser.add_argument(
+        "--max-frame-bytes",
+        type=_max_frame_bytes,
+        default=Settings().max_frame_bytes,
+        metavar="N",
+        help="largest frame payload sent, bytes: a larger frame stops the replay (exit 2); "
+        "match the service's max_frame_bytes (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--wait-for-subscriber",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="wait until the key has a subscriber before sending (default: on)",
+    )
+    parser.add_argument(
+        "--subscriber-timeout",
+        type=_positive_float,
+        default=None,
+        metavar="S",
+        help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
+    )
+    add_zenoh_arguments(parser)
+    parser.set_defaults(handler=_cmd_replay)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.dataset is not None:
+        from zenoh_perception.bench import dataset  # noqa: PLC0415
+
+        return dataset.main(args, load_settings(args.settings))
+    from zenoh_perception.bench import detectors  # noqa: PLC0415
+
+    return detectors.main(args)
+
+
+def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """Add the ``bench`` subcommand."""
+    parser = sub.add_parser(
+        "bench",
+        help="the service's detector against OpenCV's default, side by side",
+        description="Generated frame sets by default; --dataset MANIFEST for labelled real "
+        "pictures and videos (see corpus/README.md). Exit code 1 when a goal fails.",
+    )
+    parser.add_argument("--quick", action="store_true", help="few frames (well under a minute)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the report as JSON")
+    parser.add_argument(
+        "--plot", type=Path, metavar="PATH", help="write a PNG of latency vs resolution"
+    )
+    parser.add_argument("--frames", type=int, help="independent frames per resolution")
+    parser.add_argument("--video-frames", type=int, help="frames of the video drive")
+    parser.add_argument("--seed", type=int, help="scene seed")
+    parser.add_argument(
+        "--passes",
+        type=int,
+        help="end to end: lockstep passes over each frame set, pooled (full: 3)",
+    )
+    parser.add_argument(
+        "--no-e2e", action="store_true", help="skip the service (Zenoh) measurements"
+    )
+    parser.add_argument(
+        "--no-shm",
+        action="store_true",
+        help="end to end: the camera puts plain bytes (Zenoh copies them on put) instead of "
+        "frames from a shared-memory buffer",
+    )
+    group = parser.add_argument_group("labelled dataset")
+    group.add_argument(
+        "--dataset", type=Path, metavar="MANIFEST", help="bench a labelled manifest instead"
+    )
+    group.add_argument(
+        "--data", type=Path, metavar="DIR", help="its files (default: data/ beside it)"
+    )
+    group.add_argument(
+        "--settings",
+        type=Path,
+        metavar="FILE",
+        help="the service settings to bench (default: the defaults)",
+    )
+    group.add_argument(
+        "--e2e", action="store_true", help="also run each video through service processes"
+    )
+    group.add_argument(
+        "--max-video-frames",
+        type=int,
+        default=600,
+        metavar="N",
+        help="frames read from each video (default 600)",
+    )
+    parser.set_defaults(handler=_cmd_bench)
+
+
+#: Each entry adds one subcommand whose parser sets ``handler`` (a function of the namespace
+#: returning the exit code).
+COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None], ...] = (
+    _add_run,
+    _add_demo,
+    _add_echo,
+    _add_status,
+    _add_replay,
+    _add_bench,
+)

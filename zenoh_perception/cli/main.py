@@ -1,0 +1,86 @@
+"""The ``zenoh-perception`` command line: parses arguments and calls the matching ``main``."""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import sys
+from collections.abc import Callable, Sequence
+from typing import NoReturn
+
+import zenoh
+
+from zenoh_perception import __version__
+from zenoh_perception.cli.commands import COMMANDS
+from zenoh_perception.errors import PerceptionError
+from zenoh_perception.service.logs import configure_logging
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that names the closest flag (of any subcommand) when one is mistyped."""
+
+    def error(self, message: str) -> NoReturn:
+        prefix = "unrecognized arguments: "
+        if message.startswith(prefix):
+            known = sorted(_option_strings(self))
+            hints = []
+            for token in message.removeprefix(prefix).split():
+                flag = token.split("=", 1)[0]
+                close = difflib.get_close_matches(flag, known, n=1) if flag.startswith("-") else []
+                if close:
+                    hints.append(f"{flag}: did you mean {close[0]}?")
+            if hints:
+                message = f"{message} ({'; '.join(hints)})"
+        super().error(message)
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> set[str]:
+    """Every flag of ``parser`` and of its subcommands."""
+    found: set[str] = set()
+    for action in parser._actions:  # argparse offers no public view of them
+        found.update(s for s in action.option_strings if s.startswith("--"))
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found |= _option_strings(sub)
+    return found
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(
+        prog="zenoh-perception",
+        description="ArUco tag perception over Zenoh, ROS 2 compatible on the wire.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+        help="log level (default INFO); Zenoh's own log follows RUST_LOG",
+    )
+    # a mistyped flag of a subcommand is reported by this top-level parser
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=argparse.ArgumentParser
+    )
+    for add in COMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    configure_logging(args.log_level)
+    zenoh.init_log_from_env_or("error")
+    handler: Handler = args.handler
+    try:
+        return handler(args)
+    except PerceptionError as err:
+        print(f"zenoh-perception: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

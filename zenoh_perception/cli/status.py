@@ -1,0 +1,35 @@
+"""``zenoh-perception status``: query the service's status queryable and print its JSON."""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import TextIO
+
+import zenoh
+
+from zenoh_perception.service.status import query_status
+from zenoh_perception.service.zenoh_args import open_zenoh
+
+
+def main(
+    conf: zenoh.Config,
+    *,
+    key: str = "perception/status",
+    timeout: float = 2.0,
+    out: TextIO = sys.stdout,
+) -> int:
+    """Print the status JSON; 0 when at least one service answered, 1 otherwise.
+
+    Raises:
+        SessionError: the Zenoh session cannot be opened.
+
+    """
+    with open_zenoh(conf) as session:
+        replies = query_status(session, key, timeout)
+    if not replies:
+        print(f"no perception service answered on {key!r} within {timeout} s", file=sys.stderr)
+        return 1
+    for reply in replies:
+        print(json.dumps(reply, indent=2), file=out)
+    return 0
