@@ -62,9 +62,10 @@ HEALTHCHECK --interval=15s --timeout=10s --start-period=30s --retries=3 \
     CMD zenoh-perception status -m client -e "$ZENOH_CONNECT" --no-multicast-scouting --timeout 2 \
         || exit 1
 
-# `docker stop` sends SIGINT: every subcommand stops cleanly on it (`run` has its own handler,
-# the others get Python's KeyboardInterrupt), whereas a subcommand without a SIGTERM handler
-# would, as PID 1, ignore SIGTERM and be SIGKILLed after the grace period.
+# `docker stop` sends SIGINT: every subcommand stops cleanly on it (`run`, `replay`, `demo` and
+# `echo` handle SIGINT and SIGTERM alike, `status` and `bench` get Python's KeyboardInterrupt),
+# whereas a subcommand without a SIGTERM handler would, as PID 1, ignore SIGTERM and be
+# SIGKILLed after the grace period.
 STOPSIGNAL SIGINT
 
 ENTRYPOINT ["zenoh-perception"]

@@ -1,19 +1,19 @@
 """zenoh-perception: ArUco tag perception over Zenoh, ROS 2 compatible on the wire.
 
-Architecture (pure parts first, Zenoh last):
+One package per concern, pure parts first and Zenoh last; a module imports only from its own
+layer and the layers above it in this list:
 
-- ``frames``     decode camera frames (raw + msgpack attachment, or sensor_msgs/Image CDR)
-- ``detection``  find ArUco markers in a grey image
-- ``geometry``   per-tag centre, area, closeness metric
-- ``selection``  pick the one tag a frame reports (closest / centre policy)
-- ``messages``   the ROS 2 wire types (StarterProjectTag, Image, CompressedImage) via rosbags
-- ``records``    encode/decode the ``tag`` CDR and the ``perception/tags`` msgpack record
-- ``pipeline``   frame -> detections -> observations -> selection, no I/O
-- ``mailbox``    latest-frame-wins hand-off between Zenoh's callback thread and the worker
-- ``stats``      counters, latency percentiles, rate-limited log gate
-- ``settings``   the one frozen settings dataclass and its TOML file / flag overrides
-- ``service``    the thin Zenoh wiring (subscriber, worker, publishers, status, liveliness)
-- ``cli``        argument parsing only
+- ``errors``, ``resolutions``  typed errors; the named camera resolutions
+- ``tags``      what a detection means: centre, closeness, pose, the one tag a frame reports
+- ``wire``      bytes to objects and back: camera frames, ROS 2 types, tag CDR, record, debug image
+- ``detect``    markers in a grey image (OpenCV's ArUco detector decides every one)
+- ``scene``     synthetic scenes with exact ground truth
+- ``settings``  the one frozen settings dataclass, its TOML file and its flags
+- ``pipeline``  frame -> grey -> detections -> tags -> selection, no I/O
+- ``service``   the Zenoh node (subscriber, worker, publishers, status, liveliness) and its parts
+- ``camera``    what publishes frames when no ZED does: shared memory, replay, the demo camera
+- ``bench``     benchmarks and stress tools
+- ``cli``       the ``zenoh-perception`` command
 """
 
 __version__ = "0.1.0"

@@ -91,7 +91,7 @@ class IntrinsicsError(PerceptionError):
 
 class ProcessingError(PerceptionError):
     """A decoded frame could not be turned into its outputs; ``stage`` says where it failed
-    (``detect``, ``encode``, ``debug_image``)."""
+    (``detect``, ``encode_tag``, ``encode_record``, ``debug_image``)."""
 
     reason = "processing_error"
 

@@ -2,7 +2,8 @@
 
 The frames come from :mod:`zenoh_perception.camera.sources` (rosbag2, video, images). This module
 holds the pure pacing and progress-bar code, the Zenoh publishing loop (:func:`main`) and the
-``replay`` subcommand's arguments (:func:`register`).
+options it takes from the ``replay`` flags (:func:`options_from_args`; the flags themselves are
+declared in :mod:`zenoh_perception.cli.commands`).
 
 Pacing: ``recorded`` follows the sources' recording clock (bag receive times, video FPS, image
 rate), ``rate`` sends at a fixed rate, ``asap`` as fast as Zenoh takes them. The publisher uses

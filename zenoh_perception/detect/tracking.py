@@ -9,12 +9,11 @@ thumbnail (one pixel per 16 x 16 block), and:
   than ``scene_cut_level`` grey levels on average, so independent frames are each scanned);
   when no known marker was in view on the previous frame; when a block away from the known
   markers changed by more than ``appear_level`` (something appeared there); when a followed
-  marker is not found again where it
-  was expected (it moved farther than its region, was hidden or left); when OpenCV reads, on
-  the frame at a quarter of its size (a glimpse, a sixteenth of the pixels), a marker that no
-  known one explains (a large marker turning into view); and at least every
-  ``full_scan_period`` frames, so a marker that enters a followed scene unnoticed is reported
-  within that many frames;
+  marker is not found again where it was expected (it moved farther than its region, was
+  hidden or left); when OpenCV reads, on the frame at a quarter of its size (a glimpse, a
+  sixteenth of the pixels), a marker that no known one explains (a large marker turning into
+  view); and at least every ``full_scan_period`` frames, so a marker that enters a followed
+  scene unnoticed is reported within that many frames;
 - otherwise the frame is followed: each known marker is read in a region around the place its
   last two sightings predict (constant velocity), with a margin of half its side plus its
   motion, at the scale that keeps its side at least READ_SIDE_PX (a large marker needs no

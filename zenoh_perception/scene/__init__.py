@@ -24,7 +24,8 @@ returns (any solver; IPPE_SQUARE's object points). `distance_m` is the norm of t
 Main entry points
 -----------------
 - `render_markers(width, height, [(id, corners), ...])`: flat exact placement, BGRA, no effects.
-- `CameraModel.from_hfov(w, h, hfov_deg)`, `CameraModel.named("HD1080")`, `RESOLUTIONS`.
+- `CameraModel.from_hfov(w, h, hfov_deg)`, `CameraModel.named("HD1080")` (the names of
+  `zenoh_perception.resolutions.RESOLUTIONS`).
 - `SceneGenerator(camera, dictionary=..., seed=..., effects=Effects.realistic())` with
   `.random_scene(...)`, `.scene_from_poses(...)` and `.drive(...)`, each giving `Scene` objects
   (BGRA image + `MarkerTruth` / `DistractorTruth` tuples).

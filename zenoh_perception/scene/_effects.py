@@ -177,7 +177,8 @@ class Effects:
             lighting_angle_deg=float(rng.uniform(0.0, 360.0)),
             brightness=pick(self.brightness),
             contrast=pick(self.contrast),
-            # drawn last and only when asked for, so the other presets draw as before
+            # drawn last and only when enabled: without camera effects a scene draws exactly the
+            # values it would if camera effects did not exist
             camera=self.camera.sample(rng) if self.camera.enabled else CameraParams(),
         )
 

@@ -17,6 +17,7 @@ import time
 from typing import Final
 
 _PLAIN: Final = re.compile(r"[^\s\"=\\]*")
+log = logging.getLogger("zenoh_perception.service.logs")
 
 
 def kv_value(value: object) -> str:
@@ -49,7 +50,7 @@ class KeyValueFormatter(logging.Formatter):
 
 def _log_thread_crash(args: threading.ExceptHookArgs) -> None:
     name = args.thread.name if args.thread is not None else "unknown"
-    logging.getLogger("zenoh_perception").error(
+    log.error(
         "event=thread_crashed %s",
         kv(thread=name, error=args.exc_type.__name__),
         exc_info=args.exc_value,

@@ -551,8 +551,9 @@ def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
     endpoints = _connect_endpoints(conf)
     with session, PerceptionService(session, settings) as service:
         # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives as
-        # long as the process: out of the collector's way. A full collection that scans it
-        # stalls a frame until the next one replaces another.
+        # long as the process: out of the collector's way. A full collection that scanned it
+        # would delay the frame in progress, at a high frame rate long enough for the next
+        # frame to replace a waiting one (a drop).
         gc.freeze()
         check_at = time.monotonic() + CONNECT_WARNING_S if endpoints else math.inf
         while not stop.wait(0.5):

@@ -6,7 +6,7 @@ import logging
 import signal
 import threading
 
-log = logging.getLogger("zenoh_perception")
+log = logging.getLogger("zenoh_perception.service.signals")
 
 
 def stop_on_signals() -> threading.Event:

@@ -37,8 +37,8 @@ FOCAL_PX_MAX: Final = 100_000.0
 FOCAL_ASPECT_MAX: Final = 4.0
 
 
-# Plain Python floats: on four points, numpy's per-call cost (np.roll, mean) is 20x the maths,
-# and these run for every tag of every frame.
+# Plain Python floats: on four points numpy's per-call overhead (np.roll, mean) outweighs the
+# arithmetic itself, and these run for every tag of every frame.
 
 
 def _points(corners: Corners) -> list[list[float]]:

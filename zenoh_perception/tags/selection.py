@@ -4,8 +4,8 @@ Policies:
 
 - ``closest`` (default): lowest closeness metric; ties go to the tag nearer the image centre,
   then to the lower id.
-- ``center``: nearest the image centre (the older convention); ties go to the lower closeness
-  metric, then the lower id.
+- ``center``: nearest the image centre; ties go to the lower closeness metric, then the lower
+  id.
 
 Closeness values from different metrics are not comparable: with ``metric = "distance"`` a tag
 without a pose (no size known for its id, or no intrinsics yet) keeps its ``area`` closeness,

@@ -3,7 +3,8 @@
 Both decoders return a :class:`Frame` whose ``pixels`` is a *view* into the payload (no pixel
 copy): rows may be padded (``step`` larger than ``width * channels``) and are described by numpy
 strides rather than copied away. Every size is checked against the bytes actually present before
-any view is built, so a hostile header can never make us allocate or read past the payload.
+any view is built, so a hostile header can never make the decoder allocate or read past the
+payload.
 
 Limits: a payload of more than the service's ``max_frame_bytes`` is refused before it is copied
 (:func:`check_payload_size`), a frame of more than ``max_pixels`` pixels before it is viewed, and
