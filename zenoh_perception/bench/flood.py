@@ -13,7 +13,8 @@ frames at ``ratio`` times its processing rate and then checks what a rover needs
   ``dropped > 0``.
 
 The building blocks (marker frames, a raw-frame camera, a listener of the service's outputs,
-/proc readings) are shared with the soak and fuzz scripts.
+/proc readings, status counts) are shared with the soak and fuzz scripts, the benches and the
+tests.
 """
 
 from __future__ import annotations

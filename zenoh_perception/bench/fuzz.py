@@ -51,7 +51,7 @@ from zenoh_perception.bench.flood import (
     marker_frame,
     wait_status,
 )
-from zenoh_perception.bench.soak import start_service, stop_service
+from zenoh_perception.bench.processes import start_service, stop_service
 from zenoh_perception.errors import FrameDecodeError
 from zenoh_perception.service.node import PROCESSING_ERROR
 from zenoh_perception.settings import Settings

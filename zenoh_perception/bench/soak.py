@@ -16,9 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -42,6 +39,7 @@ from zenoh_perception.bench.flood import (
     proc_sample,
     wait_status,
 )
+from zenoh_perception.bench.processes import start_service, stop_service
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.wire.records import decode_record
@@ -151,36 +149,6 @@ def _frames(resolution: str, count: int = 8) -> list[MarkerFrame]:
         y = margin + (height - side - 2 * margin) * ((i * 3) % count) // max(count - 1, 1)
         frames.append(marker_frame(width, height, i % 50, side=side, origin=(x, y), seed=i))
     return frames
-
-
-def start_service(
-    endpoint: str, log: TextIO, *extra: str, module: Sequence[str] = ("zenoh_perception", "run")
-) -> subprocess.Popen[bytes]:
-    """The real CLI listening on ``endpoint`` (loopback, no multicast scouting); ``module``:
-    what ``python -m`` runs instead (the bench's transport floor)."""
-    command = [
-        sys.executable,
-        "-m",
-        *module,
-        "-l",
-        endpoint,
-        "--no-multicast-scouting",
-        *extra,
-    ]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=env)
-
-
-def stop_service(proc: subprocess.Popen[bytes], timeout: float = 10.0) -> tuple[int, float]:
-    """SIGTERM; (exit code, seconds to exit). Killed (code -9) if it does not exit in time."""
-    started = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    try:
-        code = proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        code = proc.wait()
-    return code, time.monotonic() - started
 
 
 def run_soak(config: SoakConfig, *, progress: TextIO | None = None) -> SoakReport:

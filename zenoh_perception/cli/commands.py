@@ -285,9 +285,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from zenoh_perception.bench import dataset  # noqa: PLC0415
 
         return dataset.main(args, load_settings(args.settings))
-    from zenoh_perception.bench import detectors  # noqa: PLC0415
+    from zenoh_perception.bench import generated  # noqa: PLC0415
 
-    return detectors.main(args)
+    return generated.main(args)
 
 
 def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

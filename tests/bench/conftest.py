@@ -1,0 +1,102 @@
+"""The benches' runs shared by the tests of their modules: ``bench --quick`` through the CLI
+(end to end through real service processes, shared memory and plain bytes), and a small
+labelled corpus (made-up items: the real corpus is not in CI)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from zenoh_perception.cli import main as cli
+from zenoh_perception.scene import render_markers
+
+W, H = 640, 480
+
+
+@dataclass(frozen=True)
+class BenchRun:
+    """What one ``zenoh-perception bench`` run left: its exit code, JSON report and plot."""
+
+    code: int
+    report: dict[str, Any]
+    plot: Path
+
+
+def _bench(folder: Path, *argv: str) -> BenchRun:
+    path, plot = folder / "bench.json", folder / "bench.png"
+    code = cli.main(["bench", *argv, "--json", str(path), "--plot", str(plot)])
+    report: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    return BenchRun(code, report, plot)
+
+
+@pytest.fixture(scope="session")
+def quick(tmp_path_factory: pytest.TempPathFactory) -> BenchRun:
+    """``bench --quick``: every frame set, end to end and throughput, shared memory."""
+    return _bench(tmp_path_factory.mktemp("bench"), "--quick")
+
+
+@pytest.fixture(scope="session")
+def quick_no_shm(tmp_path_factory: pytest.TempPathFactory) -> BenchRun:
+    """A smaller quick run, one pass, whose camera puts plain bytes."""
+    argv = ("--quick", "--no-shm", "--frames", "2", "--video-frames", "4", "--passes", "1")
+    return _bench(tmp_path_factory.mktemp("bench"), *argv)
+
+
+def square(x0: float, y0: float, side: float) -> npt.NDArray[np.float64]:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def _bgr(image: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2BGR), dtype=np.uint8)
+
+
+def labelled(name: str, kind: str, markers: dict[str, int], **extra: Any) -> dict[str, Any]:
+    """One manifest item (DICT_4X4_50 unless ``extra`` says otherwise)."""
+    return {"name": name, "kind": kind, "dictionary": "DICT_4X4_50", "markers": markers, **extra}
+
+
+@pytest.fixture(scope="session")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A manifest and its data folder: stills, a negative, a sequence and a video."""
+    root = tmp_path_factory.mktemp("corpus")
+    data = root / "data"
+    data.mkdir()
+    two = render_markers(W, H, [(3, square(60, 60, 100)), (7, square(400, 200, 30))])
+    cv2.imwrite(str(data / "two.png"), _bgr(two))
+    # id 9 is labelled, id 12 is a marker the labeller could not read
+    one_known = render_markers(W, H, [(9, square(100, 100, 60)), (12, square(300, 300, 60))])
+    cv2.imwrite(str(data / "unknown.png"), _bgr(one_known))
+    five = render_markers(W, H, [(4, square(200, 150, 120))], dictionary="DICT_5X5_100")
+    cv2.imwrite(str(data / "five.jpg"), _bgr(five))
+    # a negative that holds a DICT_4X4_50 marker nobody labelled: a false id by definition
+    cv2.imwrite(str(data / "n-empty.png"), _bgr(render_markers(W, H, [(1, square(50, 50, 80))])))
+    sequence = data / "walk"
+    sequence.mkdir()
+    for k in range(6):
+        frame = render_markers(W, H, [(5, square(80 + 10 * k, 120, 90))])
+        cv2.imwrite(str(sequence / f"{k:06d}.png"), _bgr(frame))
+    writer = cv2.VideoWriter(str(data / "clip.avi"), cv2.VideoWriter.fourcc(*"MJPG"), 10, (W, H))
+    assert writer.isOpened()
+    for k in range(8):
+        writer.write(_bgr(render_markers(W, H, [(2, square(300 - 8 * k, 200, 100))])))
+    writer.release()
+    manifest = {
+        "format": 1,
+        "items": [
+            labelled("two", "image", {"3": 1, "7": 1}, camera="webcam"),
+            labelled("unknown", "image", {"9": 1}, unknown_markers=1),
+            {**labelled("five", "image", {"4": 1}), "dictionary": "DICT_5X5_100"},
+            labelled("n-empty", "image", {}),
+            labelled("walk", "sequence", {"5": 1}),
+            labelled("clip", "video", {"2": 1}),
+        ],
+    }
+    (root / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    return root

@@ -1,0 +1,45 @@
+"""The bench's side of its service processes: raw frames, the camera, SIGTERM."""
+
+from __future__ import annotations
+
+import signal
+
+import msgpack
+import numpy as np
+import pytest
+
+from zenoh_perception.bench.processes import Camera, raw_frame, raw_frames, sigterm_exits
+from zenoh_perception.scene import CameraModel, SceneGenerator
+
+
+def test_a_raw_frame_is_the_bgra_payload_and_its_attachment() -> None:
+    image = np.arange(2 * 3 * 4, dtype=np.uint8).reshape(2, 3, 4)
+    frame = raw_frame(image, 5)
+    assert frame.payload == image.tobytes()
+    meta = msgpack.unpackb(frame.attachment, raw=False)
+    assert (meta["width"], meta["height"], meta["seq"], meta["frame_id"]) == (3, 2, 5, "bench")
+
+
+def test_raw_frames_number_the_scenes_in_order() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=4)
+    frames = raw_frames(generator.random_scene(1, 0) for _ in range(3))
+    assert [msgpack.unpackb(f.attachment, raw=False)["seq"] for f in frames] == [0, 1, 2]
+
+
+def test_a_camera_without_shared_memory_puts_the_bytes_themselves() -> None:
+    camera = Camera(shm=False)
+    assert camera.load(b"abc") == b"abc"
+    assert camera.summary() == {"shm": False, "put": "bytes (Zenoh copies them on put)"}
+
+
+def test_sigterm_exits_through_the_finally_blocks_and_restores_the_handler() -> None:
+    before = signal.getsignal(signal.SIGTERM)
+    cleaned = []
+    with pytest.raises(SystemExit) as exited, sigterm_exits():
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        finally:
+            cleaned.append(True)
+    assert exited.value.code == 128 + signal.SIGTERM
+    assert cleaned == [True]
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -1,0 +1,146 @@
+"""The text reports: every figure of the JSON report stands in its row."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from tests.bench.conftest import BenchRun
+from zenoh_perception.bench.dataset import evaluate, load_manifest
+from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
+from zenoh_perception.bench.report import fmt, format_dataset_report, format_report, table
+from zenoh_perception.settings import Settings
+
+
+def rows(text: str) -> list[list[str]]:
+    """Every line of ``text`` as its cells (columns are two spaces apart or more)."""
+    return [re.split(r" {2,}", line.strip()) for line in text.splitlines() if line.strip()]
+
+
+def row(text: str, *first: str) -> list[str]:
+    """The one row whose first cells are ``first``."""
+    found = [r for r in rows(text) if r[: len(first)] == list(first)]
+    assert len(found) == 1, (first, found)
+    return found[0]
+
+
+def per_pass(name: str) -> re.Pattern[str]:
+    """The line that gives each pass's figures of an end-to-end set."""
+    return re.compile(rf"{re.escape(name)}: \d+ passes over its frames")
+
+
+def test_table_aligns_columns_under_a_rule() -> None:
+    text = table(["a", "long header"], [["wide cell", "x"], ["y", "z"]])
+    assert text.splitlines() == [
+        "a          long header",
+        "---------  -----------",
+        "wide cell  x          ",
+        "y          z          ",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("value", "spec", "text"), [(None, ".2f", "-"), (1.23456, ".3f", "1.235"), (7, ".2f", "7")]
+)
+def test_fmt_writes_figures(value: Any, spec: str, text: str) -> None:
+    assert fmt(value, spec) == text
+
+
+def test_every_set_and_detector_has_its_detection_row(quick: BenchRun) -> None:
+    report = quick.report
+    text = format_report(report)
+    for name, entry in report["sets"].items():
+        for who in ("baseline", "tracking"):
+            s = entry[who]
+            assert row(text, name, who) == [
+                name,
+                who,
+                fmt(s["median_ms"]),
+                fmt(s["p99_ms"]),
+                fmt(s["mean_ms"]),
+                f"{s['recall']:.3f} ({s['found']}/{s['visible']})",
+                str(s["false_positives"]),
+                fmt(s["centre_error_px"], ".3f"),
+                fmt(s["distance_error_pct"]),
+            ]
+
+
+def test_every_end_to_end_process_has_its_row_and_each_pass_its_ratio(quick: BenchRun) -> None:
+    report = quick.report
+    text = format_report(report)
+    for name, entry in report["e2e"].items():
+        label = f"{name} x{entry['passes']}"
+        for who in (*E2E_DETECTORS, FLOOR):
+            s = entry[who]
+            cells = row(text, label, f"service {who}")
+            assert cells[2:5] == [fmt(s["median_ms"]), fmt(s["mean_ms"]), fmt(s["p99_ms"])]
+            assert cells[6:] == [
+                fmt(s["overhead_median_ms"]),
+                fmt(s["overhead_mean_ms"]),
+                f"{s['recall']:.3f}",
+                str(s["false_positives"]),
+            ]
+        bare = entry["baseline_detection"]
+        assert row(text, label, "bare baseline")[2] == fmt(bare["median_ms"])
+        (line,) = [ln for ln in text.splitlines() if per_pass(name).match(ln)]
+        for who in E2E_DETECTORS:
+            assert f"{who} " + ", ".join(f"{r:.2f}" for r in entry["pass_ratios"][who]) in line
+    heading = next(ln for ln in text.splitlines() if ln.startswith("End to end"))
+    assert f"camera put: {report['e2e_setup']['camera_put']}" in heading
+
+
+def test_one_pass_has_no_per_pass_line(quick_no_shm: BenchRun) -> None:
+    report = quick_no_shm.report
+    text = format_report(report)
+    for name in report["e2e"]:
+        assert row(text, name, "service tracking")[0] == name  # no "x1"
+        assert not [ln for ln in text.splitlines() if per_pass(name).match(ln)]
+
+
+def test_every_throughput_run_has_its_row(quick: BenchRun) -> None:
+    text = format_report(quick.report)
+    for who, t in quick.report["throughput"].items():
+        assert row(text, who, t["resolution"])[3:6] == [
+            str(t["published"]),
+            str(t["processed"]),
+            str(t["dropped"]),
+        ]
+
+
+def test_every_goal_has_its_row_and_verdict(quick: BenchRun) -> None:
+    text = format_report(quick.report)
+    for goal in quick.report["goals"]:
+        cells = row(text, goal["goal"])
+        assert cells[1:4] == [
+            fmt(goal["value"], ".3f"),
+            goal["threshold"],
+            "PASS" if goal["pass"] else "FAIL",
+        ]
+
+
+def test_the_dataset_report_has_a_row_per_group_item_and_goal(corpus: Path) -> None:
+    items = load_manifest(corpus / "manifest.json")
+    report = evaluate(items, corpus / "data", Settings())
+    text = format_dataset_report(report)
+    for name, group in report["groups"].items():
+        opencv, service = group["opencv"], group["service"]
+        assert row(text, name)[1:5] == [
+            str(opencv["frames"]),
+            str(opencv["labelled"]),
+            str(opencv["found"]),
+            str(opencv["false_ids"]),
+        ]
+        assert row(text, name)[7:9] == [str(service["found"]), str(service["false_ids"])]
+    for item in report["items"]:
+        cells = row(text, item["name"], item["kind"], item["dictionary"])
+        assert cells[6] == f"{item['opencv']['found']}/{item['opencv']['false_ids']}"
+        assert cells[8] == f"{item['service']['found']}/{item['service']['false_ids']}"
+    for goal in report["goals"]:
+        assert row(text, goal["goal"])[1:4] == [
+            str(goal["value"]),
+            goal["threshold"],
+            "PASS" if goal["pass"] else "FAIL",
+        ]

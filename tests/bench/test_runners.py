@@ -1,0 +1,62 @@
+"""The two detectors side by side: same frames, order rotating, one tally each."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.bench.runners import PAIR, Baseline, Project, compare, pair, rotation
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
+from zenoh_perception.settings import Settings
+
+
+def test_rotation_puts_each_first_in_turn() -> None:
+    assert rotation("abc", 0) == ["a", "b", "c"]
+    assert rotation("abc", 1) == ["b", "c", "a"]
+    assert rotation("abc", 5) == ["c", "a", "b"]
+    assert rotation(PAIR, 1) == [PAIR[1], PAIR[0]]
+
+
+class Recorder:
+    """A runner that finds nothing and says when it ran."""
+
+    def __init__(self, name: str, calls: list[str]) -> None:
+        self.name = name
+        self.calls = calls
+
+    def run(self, image: npt.NDArray[np.uint8]) -> tuple[list[Detection], float]:
+        self.calls.append(self.name)
+        return [], 1.0
+
+
+def test_compare_runs_every_runner_on_every_frame_in_rotating_order() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=5, effects=Effects.clean())
+    scenes = [generator.random_scene(2, 0) for _ in range(3)]
+    calls: list[str] = []
+    tallies = compare(scenes, [Recorder("a", calls), Recorder("b", calls)], None, "test")
+    assert calls == ["a", "b", "b", "a", "a", "b"]
+    assert [len(t.times_ms) for t in tallies] == [3, 3]
+    assert tallies[0].visible == sum(
+        1 for s in scenes for m in s.markers if m.visible and not m.occluded
+    )
+
+
+def test_baseline_and_project_find_the_tags_of_a_clean_frame() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=2, effects=Effects.clean())
+    scene = generator.random_scene(3, 0)
+    wanted = sorted(m.tag_id for m in scene.markers if m.visible and not m.occluded)
+    assert wanted
+    for runner in (Baseline(), Project()):
+        detections, ms = runner.run(scene.image)
+        assert sorted(d.tag_id for d in detections) == wanted
+        assert ms > 0.0
+
+
+def test_the_pair_runs_the_service_s_detector_with_its_settings() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=2, effects=Effects.clean())
+    image = generator.random_scene(3, 0).image
+    runners = pair("DICT_4X4_50", Settings(min_tag_side_px=1000.0))
+    assert tuple(runners) == PAIR
+    assert runners["opencv"].run(image)[0]  # OpenCV's default sees the tags...
+    assert runners["service"].run(image)[0] == []  # ...the service drops them: too small

@@ -1,0 +1,101 @@
+"""A PNG of the generated bench's detection latency against resolution, drawn with OpenCV."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.bench.framesets import RESOLUTIONS
+
+Image = npt.NDArray[np.uint8]
+
+
+def plot(report: dict[str, Any], path: Path) -> None:
+    """PNG of detection latency (median solid, p99 dashed) against resolution."""
+    width, height = 960, 600
+    left, right, top, bottom = 90, 40, 60, 90
+    canvas = np.full((height, width, 3), 255, dtype=np.uint8)
+    names = [n for n in RESOLUTIONS if n in report["sets"]]
+    series = []
+    for who, colour in (("baseline", (40, 40, 220)), ("tracking", (200, 110, 20))):
+        med = [report["sets"][n][who]["median_ms"] or 0.0 for n in names]
+        p99 = [report["sets"][n][who]["p99_ms"] or 0.0 for n in names]
+        series.append((who, colour, med, p99))
+    top_ms = max(max(p99) for _, _, _, p99 in series) * 1.1 or 1.0
+    plot_w, plot_h = width - left - right, height - top - bottom
+
+    def xy(i: int, ms: float) -> tuple[int, int]:
+        x = left + round(plot_w * (i + 0.5) / len(names))
+        y = top + plot_h - round(plot_h * ms / top_ms)
+        return x, y
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.rectangle(canvas, (left, top), (left + plot_w, top + plot_h), (0, 0, 0), 1)
+    step = _nice_step(top_ms / 6)
+    tick = 0.0
+    while tick <= top_ms:
+        y = xy(0, tick)[1]
+        cv2.line(canvas, (left, y), (left + plot_w, y), (225, 225, 225), 1)
+        cv2.putText(canvas, f"{tick:g}", (left - 60, y + 5), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        tick += step
+    for i, name in enumerate(names):
+        x = xy(i, 0)[0]
+        cv2.putText(canvas, name, (x - 30, top + plot_h + 30), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    for _who, colour, med, p99 in series:
+        points = [xy(i, v) for i, v in enumerate(med)]
+        for a, b in itertools.pairwise(points):
+            cv2.line(canvas, a, b, colour, 2, cv2.LINE_AA)
+        for p in points:
+            cv2.circle(canvas, p, 5, colour, -1, cv2.LINE_AA)
+        points = [xy(i, v) for i, v in enumerate(p99)]
+        for a, b in itertools.pairwise(points):
+            _dashed(canvas, a, b, colour)
+    cv2.putText(
+        canvas,
+        "Detection latency vs resolution (median solid, p99 dashed)",
+        (left, 35),
+        font,
+        0.7,
+        (0, 0, 0),
+        1,
+        cv2.LINE_AA,
+    )
+    cv2.putText(canvas, "ms", (left - 60, top - 12), font, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+    for k, (who, colour, _, _) in enumerate(series):
+        y = top + 25 + 25 * k
+        cv2.line(canvas, (left + 20, y), (left + 60, y), colour, 2, cv2.LINE_AA)
+        text = (
+            "baseline (BGRA->BGR + OpenCV defaults)" if who == "baseline" else "tracking (default)"
+        )
+        cv2.putText(canvas, text, (left + 70, y + 5), font, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), canvas):
+        msg = f"cannot write {path}"
+        raise OSError(msg)
+
+
+def _nice_step(raw: float) -> float:
+    exponent = math.floor(math.log10(raw)) if raw > 0 else 0
+    unit = 10.0**exponent
+    for mult in (1.0, 2.0, 5.0):
+        if mult * unit >= raw:
+            return mult * unit
+    return 10.0 * unit
+
+
+def _dashed(
+    canvas: Image, a: tuple[int, int], b: tuple[int, int], colour: tuple[int, int, int]
+) -> None:
+    length = math.hypot(b[0] - a[0], b[1] - a[1])
+    dashes = max(int(length // 10), 1)
+    for k in range(0, dashes, 2):
+        t0, t1 = k / dashes, min((k + 1) / dashes, 1.0)
+        p = (round(a[0] + (b[0] - a[0]) * t0), round(a[1] + (b[1] - a[1]) * t0))
+        q = (round(a[0] + (b[0] - a[0]) * t1), round(a[1] + (b[1] - a[1]) * t1))
+        cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
