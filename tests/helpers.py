@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -152,6 +153,60 @@ def running_cli(*args: str, stop_timeout: float = 5.0) -> Iterator[subprocess.Po
             proc.stdout.close()
 
 
+class OutputLines:
+    """The output lines of a subprocess, read on a thread so that a test can wait for one line
+    with a deadline (a plain ``for line in proc.stdout`` blocks for ever when it never comes)."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        self.seen: list[str] = []
+        self._lines: queue.Queue[str | None] = queue.Queue()
+        self._thread = threading.Thread(target=self._read, args=(proc.stdout,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: Iterator[str]) -> None:
+        try:
+            for line in stream:
+                self._lines.put(line)
+        except (ValueError, OSError):  # the stream was closed under the reader
+            pass
+        finally:
+            self._lines.put(None)  # end of output
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> str:
+        """The next line holding ``text``; AssertionError at the end of the output, TimeoutError
+        when no such line came within ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                msg = f"no line with {text!r} within {timeout} s:\n{''.join(self.seen)}"
+                raise TimeoutError(msg) from None
+            if line is None:
+                msg = f"{text!r} not in the output:\n{''.join(self.seen)}"
+                raise AssertionError(msg)
+            self.seen.append(line)
+            if text in line:
+                return line
+
+    def rest(self, timeout: float = 30.0) -> list[str]:
+        """Every line still to come, up to the end of the output (the process has exited or
+        is exiting); TimeoutError when the output has not ended within ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        rest: list[str] = []
+        while True:
+            try:
+                line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                msg = f"the output did not end within {timeout} s"
+                raise TimeoutError(msg) from None
+            if line is None:
+                return rest
+            self.seen.append(line)
+            rest.append(line)
+
+
 def wait_until(
     predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition"
 ) -> None:
@@ -163,6 +218,24 @@ def wait_until(
             msg = f"{what} not reached within {timeout} s"
             raise TimeoutError(msg)
         pause.wait(0.01)
+
+
+_KEY = r"[A-Za-z_][A-Za-z0-9_.]*"
+_VALUE = r'(?:"(?:[^"\\\n]|\\.)*"|[^\s"]*)'
+#: A whole log line of key=value pairs, values bare or JSON-quoted.
+KEY_VALUE_LINE = re.compile(rf"{_KEY}={_VALUE}(?: {_KEY}={_VALUE})*")
+_PAIR = re.compile(rf"({_KEY})=({_VALUE})")
+
+
+def parse_pairs(line: str) -> dict[str, str]:
+    """The key=value pairs of a log line (values unquoted); lenient about what lies between."""
+    return {key: value.strip('"') for key, value in _PAIR.findall(line)}
+
+
+def log_events(output: str, event: str) -> list[dict[str, str]]:
+    """The key=value pairs of each line of ``output`` that logs ``event=<event>``."""
+    found = (parse_pairs(line) for line in output.splitlines())
+    return [pairs for pairs in found if pairs.get("event") == event]
 
 
 def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:

@@ -1,15 +1,22 @@
-"""The pipeline keeps no state per frame size: a camera that changes size costs no memory."""
+"""The pipeline: frame to grey to detections to per-tag geometry to the selection; and it keeps
+no state per frame size (a camera that changes size costs no memory)."""
 
 from __future__ import annotations
 
 import tracemalloc
 
 import numpy as np
+import numpy.typing as npt
+import pytest
 
-from zenoh_perception.pipeline import Pipeline
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings
-from zenoh_perception.wire.frames import RawFrameMeta, decode_raw_frame
+from zenoh_perception.tags.geometry import closeness_from_area
+from zenoh_perception.tags.pose import Intrinsics
+from zenoh_perception.tags.selection import NO_TAG, Metric
+from zenoh_perception.wire.frames import Frame, RawFrameMeta, decode_raw_frame
 
 
 def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:
@@ -39,3 +46,112 @@ def test_frames_of_ever_new_sizes_do_not_grow_memory() -> None:
         tracemalloc.stop()
     # A cache of one buffer per frame size would hold 120 frames of 77-140 kB or more each.
     assert after - before < 1 << 20
+
+
+def _square(x0: float, y0: float, side: float) -> npt.NDArray[np.float64]:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def _frame(markers: list[tuple[int, npt.NDArray[np.float64]]], width: int = 640) -> Frame:
+    height = width * 3 // 4
+    image = render_markers(width, height, markers)
+    return decode_raw_frame(image.tobytes(), RawFrameMeta(width, height).to_msgpack())
+
+
+#: A big (close) tag 7 off centre, a small (far) tag 3 on the centre of a 640 x 480 frame.
+TWO_TAGS = [(7, _square(40, 40, 200)), (3, _square(300, 220, 40))]
+
+
+def test_every_tag_is_observed_and_the_closest_selected() -> None:
+    analysis = Pipeline(Settings()).process(_frame(TWO_TAGS))
+    tags = {tag.tag_id: tag for tag in analysis.tags}
+    assert sorted(tags) == [3, 7]
+    assert (tags[7].x, tags[7].y) == pytest.approx((139.5, 139.5), abs=0.75)
+    assert tags[7].area_px == pytest.approx(200 * 200, rel=0.03)
+    assert tags[7].closeness == pytest.approx(1 - np.sqrt(200 * 200 / (640 * 480)), abs=0.01)
+    assert all(tag.metric == Metric.AREA and tag.distance_m is None for tag in analysis.tags)
+    assert analysis.selected == tags[7].message()
+    assert analysis.convert_ms >= 0.0 and analysis.detect_ms >= 0.0
+
+
+def test_the_center_policy_selects_the_tag_on_the_centre() -> None:
+    analysis = Pipeline(Settings(policy="center")).process(_frame(TWO_TAGS))
+    assert analysis.selected.tag_id == 3
+
+
+def test_no_tag_selects_the_dummy() -> None:
+    analysis = Pipeline(Settings()).process(_frame([]))
+    assert (analysis.tags, analysis.selected) == ((), NO_TAG)
+
+
+def test_tags_smaller_than_min_tag_side_px_are_left_out() -> None:
+    analysis = Pipeline(Settings(min_tag_side_px=60.0)).process(_frame(TWO_TAGS))
+    assert [tag.tag_id for tag in analysis.tags] == [7]
+
+
+def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None:
+    settings = Settings(
+        metric="distance",
+        max_range_m=4.0,
+        tag_sizes=((7, 0.5),),
+        camera_fx=500.0,
+        camera_fy=500.0,
+        camera_cx=319.5,
+        camera_cy=239.5,
+    )
+    analysis = Pipeline(settings).process(_frame(TWO_TAGS))
+    tags = {tag.tag_id: tag for tag in analysis.tags}
+    # 200 px for 0.5 m at fx = 500: 1.25 m in front of the camera, a little to the side
+    assert tags[7].tvec is not None and tags[7].tvec[2] == pytest.approx(1.25, rel=0.02)
+    assert tags[7].distance_m == pytest.approx(float(np.linalg.norm(tags[7].tvec)))
+    assert tags[7].metric == Metric.DISTANCE
+    assert tags[7].closeness == pytest.approx(float(np.linalg.norm(tags[7].tvec)) / 4.0)
+    assert tags[3].metric == Metric.AREA and tags[3].distance_m is None  # no size for id 3
+    assert analysis.selected.tag_id == 7  # a distance ranks before an area
+
+
+def test_the_intrinsics_may_change_at_run_time() -> None:
+    pipeline = Pipeline(Settings(tag_size_m=0.2))
+    assert pipeline.intrinsics is None
+    assert pipeline.process(_frame(TWO_TAGS)).tags[0].distance_m is None
+    pipeline.intrinsics = Intrinsics(500.0, 500.0, 319.5, 239.5)
+    assert all(tag.distance_m is not None for tag in pipeline.process(_frame(TWO_TAGS)).tags)
+
+
+class _Fixed:
+    """A detector that reports the same detections whatever the frame."""
+
+    def __init__(self, *detections: Detection) -> None:
+        self.detections = list(detections)
+        self.frames: list[tuple[int, ...]] = []
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        self.frames.append(gray.shape)
+        return list(self.detections)
+
+
+def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() -> None:
+    quad = _square(10, 10, 20).astype(np.float32)
+    detector = _Fixed(Detection(42, quad))
+    analysis = Pipeline(Settings(), detector).process(_frame([], width=320))
+    assert detector.frames == [(240, 320)]
+    (tag,) = analysis.tags
+    assert (tag.tag_id, tag.x, tag.y, tag.area_px) == (42, 20.0, 20.0, 400.0)
+    assert tag.corners == tuple((float(x), float(y)) for x, y in quad)
+
+
+def test_observe_is_the_geometry_of_one_detection() -> None:
+    detection = Detection(5, _square(100, 100, 64).astype(np.float32))
+    tag = observe(detection, 640, 480, Settings())
+    assert (tag.tag_id, tag.x, tag.y) == (5, 132.0, 132.0)
+    assert tag.closeness == pytest.approx(closeness_from_area(64 * 64, 640, 480))
+    assert intrinsics_from_settings(Settings()) is None
+
+
+def test_tag_finder_filters_by_side_and_times_the_conversion() -> None:
+    small = Detection(1, _square(0, 0, 10).astype(np.float32))
+    large = Detection(2, _square(50, 50, 30).astype(np.float32))
+    finder = TagFinder(_Fixed(small, large), min_side_px=20.0)
+    detections, convert_s = finder.find(_frame([], width=320))
+    assert [d.tag_id for d in detections] == [2]
+    assert convert_s >= 0.0

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import REPO
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.service.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+from zenoh_perception.service.zenoh_args import add_zenoh_arguments
 from zenoh_perception.settings import (
     BOUNDS,
     MAX_SETTINGS_FILE_BYTES,
@@ -25,7 +26,6 @@ from zenoh_perception.settings import (
     settings_from_mapping,
 )
 
-REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config" / "perception.toml"
 
 
@@ -125,35 +125,6 @@ def test_bad_toml_names_the_file(tmp_path: Path) -> None:
         load_settings(path)
     with pytest.raises(SettingsError, match=r"missing\.toml"):
         load_settings(tmp_path / "missing.toml")
-
-
-def test_zenoh_flags_build_the_config(tmp_path: Path) -> None:
-    args = _parse(
-        "-m",
-        "client",
-        "-e",
-        "tcp/127.0.0.1:7447",
-        "-e",
-        "tcp/127.0.0.1:7448",
-        "-l",
-        "tcp/127.0.0.1:0",
-        "--no-multicast-scouting",
-        "--cfg",
-        "scouting/delay:123",
-    )
-    conf = zenoh_config_from_args(args)
-    assert conf.get_json("mode") == '"client"'
-    assert "7448" in conf.get_json("connect/endpoints")
-    assert conf.get_json("scouting/multicast/enabled") == "false"
-    assert conf.get_json("scouting/delay") == "123"
-
-
-@pytest.mark.parametrize(
-    "argv", [["--cfg", "novalue"], ["--cfg", "no/such/key:1"], ["-c", "/no/such/file.json5"]]
-)
-def test_bad_zenoh_flags_are_settings_errors(argv: list[str]) -> None:
-    with pytest.raises(SettingsError):
-        zenoh_config_from_args(_parse(*argv))
 
 
 # -- bounds of every number -----------------------------------------------------------------

@@ -1,0 +1,145 @@
+"""``demo``: the synthetic camera, the whole demo in process, and how each answer compares with
+the truth of the frame it answers."""
+
+from __future__ import annotations
+
+import io
+import re
+import threading
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.helpers import Collector, loopback_config, open_session, parse_pairs, wait_until
+from zenoh_perception.camera import demo
+from zenoh_perception.camera.demo import agreement, check_frame_bytes, publish_camera
+from zenoh_perception.errors import SettingsError
+from zenoh_perception.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import decode_image_cdr, decode_raw_frame
+
+
+def _tag(tag_id: int, x: float, y: float) -> dict[str, Any]:
+    return {
+        "tag_id": tag_id,
+        "x_tag_center_pixel": x,
+        "y_tag_center_pixel": y,
+        "closeness_metric": 0.9,
+    }
+
+
+def test_agreement_lists_found_missed_and_false_ids() -> None:
+    scene = SceneGenerator(
+        CameraModel.named("VGA"), seed=1, effects=Effects.clean()
+    ).scene_from_poses([MarkerPose(3, 0.2, (-0.3, 0.0, 1.5)), MarkerPose(9, 0.2, (0.3, 0.0, 1.5))])
+    three = scene.markers[0].corner_mean
+    record = {"tags": [_tag(3, three[0] + 0.25, three[1]), _tag(7, 10.0, 10.0)]}
+    line = agreement(record, scene.markers)
+    assert "2 visible" in line
+    assert f"found 3@({three[0] + 0.25:.1f},{three[1]:.1f}) c=0.900" in line
+    assert "centre error <= 0.25 px" in line
+    assert "missed [9]" in line
+    assert "false ids [7]" in line
+
+
+def test_agreement_of_an_empty_answer() -> None:
+    scene = SceneGenerator(
+        CameraModel.named("VGA"), seed=2, effects=Effects.clean()
+    ).scene_from_poses([MarkerPose(5, 0.2, (0.0, 0.0, 1.5))])
+    line = agreement({"tags": []}, scene.markers)
+    assert "found -" in line and "missed [5]" in line and "false ids -" in line
+
+
+def _answers(printed: io.StringIO) -> list[tuple[dict[str, str], str]]:
+    """Each record line the demo printed with the truth line printed under it."""
+    lines = printed.getvalue().splitlines()
+    return [
+        (parse_pairs(line), lines[i + 1])
+        for i, line in enumerate(lines[:-1])
+        if line.startswith("[perception/tags] ") and lines[i + 1].startswith("  truth:")
+    ]
+
+
+def _found_ids(truth: str) -> list[int]:
+    found = truth.split("; found ", 1)[1].split(";", 1)[0]
+    return [int(tag_id) for tag_id in re.findall(r"(\d+)@\(", found)]
+
+
+def test_demo_answers_its_frames_and_compares_each_answer_with_the_truth() -> None:
+    printed = io.StringIO()  # written from a Zenoh thread, read here (each call atomic)
+    stop = threading.Event()
+    codes: list[int] = []
+    settings = Settings(stats_interval_s=0.0)
+
+    def run() -> None:
+        codes.append(demo.main(loopback_config(), settings, fps=30.0, stop=stop, out=printed))
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    try:
+        # however many frames the worker skips on a busy machine, answers keep coming
+        wait_until(
+            lambda: (
+                len(_answers(printed)) >= 3
+                and any(fields["selected"] != "-1" for fields, _ in _answers(printed))
+            ),
+            timeout=120.0,
+            what="three answers, one with a tag",
+        )
+    finally:
+        stop.set()
+        thread.join(timeout=30.0)
+    assert codes == [0]
+    answers = _answers(printed)
+    seqs = [int(fields["seq"]) for fields, _ in answers]
+    assert seqs == sorted(set(seqs))  # frames in order, skipped ones missing
+    with_tag = [(fields, truth) for fields, truth in answers if fields["selected"] != "-1"]
+    # the selected tag is a real one of that frame: found where the truth puts it
+    assert any(int(fields["selected"]) in _found_ids(truth) for fields, truth in with_tag)
+
+
+def test_camera_publishes_numbered_raw_frames_of_the_scenes(endpoint: str) -> None:
+    scenes = list(SceneGenerator(CameraModel.named("VGA"), seed=3).drive(3, n_tags=2))
+    seen: list[tuple[int, Scene]] = []
+    with open_session(listen=[endpoint]) as session:
+        frames = Collector(session, "demo/image")  # same session: delivered as it is put
+        sent = publish_camera(
+            session,
+            "demo/image",
+            iter(scenes),
+            fps=1000.0,
+            cdr=False,
+            stop=threading.Event(),
+            limit=2,
+            on_frame=lambda stamp, scene: seen.append((stamp, scene)),
+        )
+        got = [frames.get() for _ in range(sent)]
+        assert frames.drain() == []
+    assert sent == 2
+    assert [id(scene) for _, scene in seen] == [id(scene) for scene in scenes[:2]]
+    for seq, (sample, (stamp, scene)) in enumerate(zip(got, seen, strict=True)):
+        frame = decode_raw_frame(sample.payload, sample.attachment)
+        assert (frame.seq, frame.stamp_ns, frame.frame_id) == (seq, stamp, "demo")
+        np.testing.assert_array_equal(frame.pixels, scene.image)
+
+
+def test_camera_publishes_cdr_frames_when_asked(endpoint: str) -> None:
+    scenes = SceneGenerator(CameraModel.named("VGA"), seed=4).drive(1, n_tags=1)
+    with open_session(listen=[endpoint]) as session:
+        frames = Collector(session, "demo/image")
+        stop = threading.Event()
+        assert publish_camera(session, "demo/image", scenes, fps=1000.0, cdr=True, stop=stop) == 1
+        sample = frames.get()
+    assert sample.attachment is None
+    frame = decode_image_cdr(sample.payload)
+    assert (frame.width, frame.height, frame.frame_id) == (640, 480, "demo")
+
+
+def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> None:
+    check_frame_bytes(1000, 1000, "a frame")
+    with pytest.raises(SettingsError, match="max_frame_bytes = 999"):
+        check_frame_bytes(1000, 999, "a frame")
+    small = Settings(max_frame_bytes=640 * 480 * 4 - 1)
+    with pytest.raises(SettingsError, match=f"is {640 * 480 * 4} bytes"):
+        demo.main(loopback_config(), small, resolution="VGA", limit=1)

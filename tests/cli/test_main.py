@@ -1,0 +1,113 @@
+"""The command line's parser: subcommands, mistyped flags, errors as exit codes."""
+
+from __future__ import annotations
+
+import argparse
+import socket
+
+import pytest
+
+from zenoh_perception import __version__
+from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY
+from zenoh_perception.cli import main as cli
+from zenoh_perception.settings import Settings
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["run", "--tag-kye", "x"], "--tag-kye: did you mean --tag-key?"),
+        (["bench", "--datset", "m.json"], "--datset: did you mean --dataset?"),
+        (["echo", "--jsn"], "--jsn: did you mean --json?"),
+    ],
+)
+def test_a_mistyped_flag_names_the_closest_one(
+    argv: list[str], hint: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    assert exit_info.value.code == 2
+    assert hint in capsys.readouterr().err
+
+
+@pytest.fixture(autouse=True)
+def _keep_logging(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``main`` configures the process's logging: not pytest's, here."""
+    monkeypatch.setattr(cli, "configure_logging", lambda level: None)
+
+
+def _subcommands() -> set[str]:
+    parser = cli.build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return set(sub.choices)
+
+
+def test_the_subcommands() -> None:
+    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "bench"}
+
+
+@pytest.mark.parametrize("command", sorted(_subcommands()))
+def test_each_subcommand_has_a_handler(command: str) -> None:
+    argv = [command, "recording.mcap"] if command == "replay" else [command]
+    args = cli.build_parser().parse_args(argv)
+    assert callable(args.handler)
+    assert args.command == command
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.split() == ["zenoh-perception", __version__]
+
+
+def test_an_invalid_setting_exits_2_naming_it(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["run", "--policy", "nearest", "--no-multicast-scouting"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("zenoh-perception: error: ") and "policy" in line
+
+
+def test_a_session_that_cannot_open_exits_2_naming_the_endpoint(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        code = cli.main(["status", "-l", endpoint, "--no-multicast-scouting", "--timeout", "0.1"])
+    assert code == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "cannot open the Zenoh session" in line and endpoint.removeprefix("tcp/") in line
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["replay", "x", "--rate", "0"], "--rate"),
+        (["replay", "x", "--rate", "nan"], "--rate"),
+        (["replay", "x", "--limit", "-1"], "--limit"),
+        (["replay", "x", "--max-frame-bytes", "10"], "max_frame_bytes"),
+        (["replay", "x", "--subscriber-timeout", "-5"], "--subscriber-timeout"),
+        (["replay", "x", "--rate", "5", "--as-fast-as-possible"], "--as-fast-as-possible"),
+        (["demo", "--resolution", "8K"], "--resolution"),
+    ],
+)
+def test_bad_flag_values_exit_2_naming_the_flag(
+    argv: list[str], named: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    assert exit_info.value.code == 2
+    assert named in capsys.readouterr().err
+
+
+def test_replay_flags_have_the_camera_defaults() -> None:
+    args = cli.build_parser().parse_args(["replay", "bag"])
+    assert (args.key, args.frame_id, args.rate, args.limit) == (
+        DEFAULT_KEY,
+        DEFAULT_FRAME_ID,
+        None,
+        0,
+    )
+    assert args.max_frame_bytes == Settings().max_frame_bytes
+    assert args.wait_for_subscriber is True and args.subscriber_timeout is None

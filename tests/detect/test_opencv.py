@@ -1,0 +1,112 @@
+"""OpenCV's ArUco detector with its default parameters: whole frames, regions of a frame (at
+full or reduced scale) and the quads it could not read."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from zenoh_perception.detect.opencv import (
+    OpenCvDetector,
+    aruco_dictionary,
+    detections_from_opencv,
+    single_threaded,
+)
+from zenoh_perception.errors import SettingsError
+from zenoh_perception.scene import render_markers
+
+W, H = 640, 480
+
+
+def _square(x0: float, y0: float, side: float) -> npt.NDArray[np.float64]:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def _gray(image: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    return np.ascontiguousarray(image[:, :, 1])  # rendered tags are grey: any channel
+
+
+FRAME = _gray(render_markers(W, H, [(3, _square(100, 100, 80)), (7, _square(400, 250, 120))]))
+
+
+def test_every_marker_is_found_with_its_corners() -> None:
+    found = {d.tag_id: d.corners for d in OpenCvDetector("DICT_4X4_50").detect(FRAME)}
+    assert sorted(found) == [3, 7]
+    for tag_id, quad in [(3, _square(100, 100, 80)), (7, _square(400, 250, 120))]:
+        assert found[tag_id].dtype == np.float32 and found[tag_id].shape == (4, 2)
+        # corners in OpenCV's order (top-left first, clockwise), without sub-pixel refinement
+        # within a pixel and a half of the truth; their mean (the centre) far closer
+        assert np.abs(found[tag_id] - quad).max() < 1.5
+        assert np.abs(found[tag_id].mean(axis=0) - quad.mean(axis=0)).max() < 0.5
+
+
+def test_nothing_is_found_in_an_empty_frame_or_with_another_dictionary() -> None:
+    assert OpenCvDetector("DICT_4X4_50").detect(_gray(render_markers(W, H, []))) == []
+    assert OpenCvDetector("DICT_6X6_250").detect(FRAME) == []
+
+
+def test_a_region_is_read_in_the_frame_s_coordinates() -> None:
+    detector = OpenCvDetector("DICT_4X4_50")
+    whole = {d.tag_id: d.corners for d in detector.detect(FRAME)}
+    x0, y0 = 360, 210
+    region = np.ascontiguousarray(FRAME[y0:, x0:])
+    (found,) = detector.detect_region(region, (x0, y0))
+    assert found.tag_id == 7
+    np.testing.assert_allclose(found.corners, whole[7], atol=1e-4)
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_a_region_read_at_a_smaller_scale_keeps_full_resolution_corners(scale: int) -> None:
+    detector = OpenCvDetector("DICT_4X4_50")
+    frame = _gray(render_markers(W, H, [(8, _square(150, 80, 300))]))
+    region = np.ascontiguousarray(frame[40:440, 100:500])
+    (found,) = detector.detect_region(region, (100, 40), scale=scale)
+    assert found.tag_id == 8
+    assert np.abs(found.corners - _square(150, 80, 300)).max() < 1.0
+
+
+def test_a_colour_region_is_read_too() -> None:
+    detector = OpenCvDetector("DICT_4X4_50")
+    bgr = cv2.cvtColor(FRAME, cv2.COLOR_GRAY2BGR)
+    (found,) = detector.detect_region(np.ascontiguousarray(bgr[200:, 350:]), (350, 200), scale=2)
+    assert found.tag_id == 7
+    assert np.abs(found.corners - _square(400, 250, 120)).max() < 1.0
+
+
+def test_a_square_that_is_no_marker_is_a_rejected_quad() -> None:
+    image = np.full((H, W), 255, dtype=np.uint8)
+    image[100:220, 100:220] = 0  # a black square: a candidate, but no code inside
+    found, rejected = OpenCvDetector("DICT_4X4_50").detect_with_rejected(image)
+    assert found == []
+    assert rejected and all(quad.shape == (4, 2) for quad in rejected)
+    centres = [quad.mean(axis=0) for quad in rejected]
+    assert any(np.abs(c - (159.5, 159.5)).max() < 5.0 for c in centres)
+
+
+def test_opencv_output_becomes_detections_shifted_by_the_offset() -> None:
+    quad = np.array([[[1.0, 2.0], [3.0, 2.0], [3.0, 4.0], [1.0, 4.0]]], dtype=np.float32)
+    (detection,) = detections_from_opencv([quad], np.array([[9]]), offset=(10, 20))
+    assert detection.tag_id == 9
+    np.testing.assert_array_equal(detection.corners, quad[0] + (10, 20))
+    assert detections_from_opencv([], None) == []
+    assert detections_from_opencv([], np.zeros((0, 1))) == []
+
+
+def test_unknown_dictionaries_are_settings_errors() -> None:
+    with pytest.raises(SettingsError):
+        aruco_dictionary("DICT_9X9_1")
+    with pytest.raises(SettingsError):
+        OpenCvDetector("DICT_9X9_1")
+    assert aruco_dictionary("dict_4x4_50").bytesList.shape[0] == 50
+
+
+def test_single_threaded_restores_opencv_s_thread_count() -> None:
+    before = cv2.getNumThreads()
+    with single_threaded():
+        assert cv2.getNumThreads() == 1
+    assert cv2.getNumThreads() == before
+    with pytest.raises(RuntimeError), single_threaded():
+        raise RuntimeError
+    assert cv2.getNumThreads() == before

@@ -1,0 +1,104 @@
+"""Zenoh session flags: the config they build, and malformed ones refused as settings errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+from pathlib import Path
+
+import pytest
+
+from zenoh_perception.errors import SessionError, SettingsError
+from zenoh_perception.service.zenoh_args import (
+    add_zenoh_arguments,
+    open_zenoh,
+    zenoh_config_from_args,
+)
+from zenoh_perception.settings import add_settings_arguments
+
+
+def _parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    add_settings_arguments(parser)
+    add_zenoh_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+def test_zenoh_flags_build_the_config(tmp_path: Path) -> None:
+    args = _parse(
+        "-m",
+        "client",
+        "-e",
+        "tcp/127.0.0.1:7447",
+        "-e",
+        "tcp/127.0.0.1:7448",
+        "-l",
+        "tcp/127.0.0.1:0",
+        "--no-multicast-scouting",
+        "--cfg",
+        "scouting/delay:123",
+    )
+    conf = zenoh_config_from_args(args)
+    assert conf.get_json("mode") == '"client"'
+    assert "7448" in conf.get_json("connect/endpoints")
+    assert conf.get_json("scouting/multicast/enabled") == "false"
+    assert conf.get_json("scouting/delay") == "123"
+
+
+@pytest.mark.parametrize(
+    "argv", [["--cfg", "novalue"], ["--cfg", "no/such/key:1"], ["-c", "/no/such/file.json5"]]
+)
+def test_bad_zenoh_flags_are_settings_errors(argv: list[str]) -> None:
+    with pytest.raises(SettingsError):
+        zenoh_config_from_args(_parse(*argv))
+
+
+def test_flags_override_the_config_file(tmp_path: Path) -> None:
+    path = tmp_path / "zenoh.json5"
+    path.write_text(
+        '{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7000"] }, // a comment\n'
+        "  scouting: { delay: 250 } }\n"
+    )
+    from_file = zenoh_config_from_args(_parse("-c", str(path)))
+    assert json.loads(from_file.get_json("mode")) == "client"
+    assert json.loads(from_file.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7000"]
+    overridden = zenoh_config_from_args(
+        _parse("-c", str(path), "-m", "peer", "-e", "tcp/127.0.0.1:7001", "-e", "tcp/[::1]:7002")
+    )
+    assert json.loads(overridden.get_json("mode")) == "peer"
+    assert json.loads(overridden.get_json("connect/endpoints")) == [
+        "tcp/127.0.0.1:7001",
+        "tcp/[::1]:7002",
+    ]
+    assert json.loads(overridden.get_json("scouting/delay")) == 250  # the rest of the file
+
+
+def test_listen_endpoints_are_repeatable() -> None:
+    conf = zenoh_config_from_args(_parse("-l", "tcp/127.0.0.1:7447", "-l", "udp/127.0.0.1:7447"))
+    assert json.loads(conf.get_json("listen/endpoints")) == [
+        "tcp/127.0.0.1:7447",
+        "udp/127.0.0.1:7447",
+    ]
+
+
+def test_a_cfg_value_that_is_not_json5_names_the_problem() -> None:
+    with pytest.raises(SettingsError, match="invalid Zenoh configuration"):
+        zenoh_config_from_args(_parse("--cfg", "scouting/delay:{not json"))
+
+
+def test_a_session_that_cannot_open_is_a_session_error_naming_the_endpoint() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"
+        conf = zenoh_config_from_args(_parse("-l", endpoint, "--no-multicast-scouting"))
+        with pytest.raises(SessionError, match="cannot open the Zenoh session") as info:
+            open_zenoh(conf)
+    assert endpoint.removeprefix("tcp/") in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_an_open_session_is_returned(endpoint: str) -> None:
+    with open_zenoh(zenoh_config_from_args(_parse("-l", endpoint, "--no-multicast-scouting"))) as s:
+        assert str(s.zid())

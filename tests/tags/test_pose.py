@@ -1,0 +1,119 @@
+"""Tag pose and distance from the intrinsics and the tag's size (OpenCV's IPPE_SQUARE)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from zenoh_perception.scene import CameraModel, MarkerPose, square_corners
+from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose
+
+VGA = Intrinsics(500.0, 500.0, 319.5, 239.5)
+
+
+def _square(x0: float, y0: float, side: float) -> np.ndarray:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def test_intrinsics_matrix_is_the_pinhole_k() -> None:
+    k = Intrinsics(600.0, 610.0, 320.5, 240.25).matrix()
+    np.testing.assert_array_equal(k, [[600.0, 0.0, 320.5], [0.0, 610.0, 240.25], [0, 0, 1]])
+    assert k.dtype == np.float64
+
+
+def test_distance_is_the_norm_of_the_translation() -> None:
+    assert Pose((0.0, 0.0, 0.0), (0.6, 0.0, 0.8)).distance_m == pytest.approx(1.0)
+
+
+def _reprojection_px(pose: Pose, corners: np.ndarray, size_m: float, k: Intrinsics) -> float:
+    """Largest distance between ``corners`` and the tag's corners projected with ``pose``."""
+    rvec, tvec = np.array(pose.rvec), np.array(pose.tvec)
+    projected, _ = cv2.projectPoints(square_corners(size_m), rvec, tvec, k.matrix(), None)
+    return float(np.abs(projected.reshape(4, 2) - corners).max())
+
+
+def test_a_centred_fronto_parallel_tag_is_straight_ahead() -> None:
+    # 100 px for 0.2 m at fx = 500: 1.0 m away, on the optical axis
+    pose = estimate_pose(_square(269.5, 189.5, 100), 0.2, VGA)
+    assert pose is not None
+    assert pose.tvec == pytest.approx((0.0, 0.0, 1.0), abs=1e-6)
+    assert pose.distance_m == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_detected_fronto_parallel_tag_faces_the_camera() -> None:
+    # corners as a detector reports them (a few hundredths of a pixel off): the tag's face
+    # points at the camera, a half turn about x from the camera's axes (marker y up, z out)
+    noise = np.array([[0.03, -0.02], [0.01, 0.02], [-0.02, 0.0], [0.0, 0.01]])
+    corners = _square(269.5, 189.5, 100) + noise
+    pose = estimate_pose(corners, 0.2, VGA)
+    assert pose is not None
+    rotation, _ = cv2.Rodrigues(np.array(pose.rvec))
+    # its x axis along the image's, its face (z) toward the camera (within about 3 degrees)
+    np.testing.assert_allclose(rotation[:, 0], [1.0, 0.0, 0.0], atol=0.05)
+    np.testing.assert_allclose(rotation[:, 2], [0.0, 0.0, -1.0], atol=0.05)
+    assert _reprojection_px(pose, corners, 0.2, VGA) < 0.25
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="OpenCV 5.0's IPPE_SQUARE returns the identity rotation (or NaN) for some exactly "
+    "noise-free quads; estimate_pose passes it on (its distance is right)",
+)
+def test_an_exactly_fronto_parallel_tag_reprojects_onto_its_corners() -> None:
+    corners = _square(269.5, 189.5, 100)
+    pose = estimate_pose(corners, 0.2, VGA)
+    assert pose is not None
+    assert _reprojection_px(pose, corners, 0.2, VGA) < 0.1
+
+
+def test_distance_scales_with_the_tag_size_and_inversely_with_its_image() -> None:
+    near = estimate_pose(_square(219.5, 139.5, 200), 0.2, VGA)
+    big = estimate_pose(_square(269.5, 189.5, 100), 0.4, VGA)
+    assert near is not None and big is not None
+    assert near.distance_m == pytest.approx(0.5, rel=1e-6)
+    assert big.distance_m == pytest.approx(2.0, rel=1e-6)
+
+
+@pytest.mark.parametrize("size_m", [0.0, -0.2])
+def test_no_pose_without_a_positive_size(size_m: float) -> None:
+    assert estimate_pose(_square(269.5, 189.5, 100), size_m, VGA) is None
+
+
+def test_no_pose_from_degenerate_corners() -> None:
+    assert estimate_pose(np.zeros((4, 2)), 0.2, VGA) is None
+
+
+_NOISE = st.floats(0.02, 0.1).flatmap(lambda size: st.sampled_from([size, -size]))
+
+
+@given(
+    position=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5), st.floats(0.6, 6.0)),
+    angles=st.tuples(st.floats(-50, 50), st.floats(-50, 50), st.floats(-180, 180)),
+    size_m=st.floats(0.05, 0.5),
+    noise=st.lists(_NOISE, min_size=8, max_size=8),
+)
+def test_the_pose_of_detected_corners_is_the_true_pose(
+    position: tuple[float, float, float],
+    angles: tuple[float, float, float],
+    size_m: float,
+    noise: list[float],
+) -> None:
+    """Corners as a detector reports them (the true projection, a few hundredths of a pixel
+    off): the distance is the true one (within what that noise allows on a tag of a few
+    pixels), and the pose projects the tag onto its corners (IPPE is exact without noise, not
+    a least-squares fit: near fronto-parallel, noise moves it by more than the noise; a wrong
+    rotation or sign convention would be off by the tag's size)."""
+    camera = CameraModel.from_hfov(800, 600, 90.0)
+    yaw, pitch, roll = angles
+    truth = MarkerPose(1, size_m, position, yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+    corners = camera.project(truth.corners_3d()) + np.reshape(noise, (4, 2))
+    side_px = float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).min())
+    assume(side_px >= 15.0)  # what a detector reads at all
+    intrinsics = Intrinsics(camera.fx, camera.fy, camera.cx, camera.cy)
+    pose = estimate_pose(corners, size_m, intrinsics)
+    assert pose is not None
+    assert pose.distance_m == pytest.approx(float(np.linalg.norm(position)), rel=0.05)
+    assert _reprojection_px(pose, corners, size_m, intrinsics) < 0.02 * side_px + 0.25
