@@ -50,12 +50,6 @@ def test_gathering_lasts_the_whole_timeout(peers: tuple[zenoh.Session, zenoh.Ses
     assert took >= 1.0  # asked again until the timeout, for services found late
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="query_status uses Zenoh's default query consolidation, which keeps one reply per "
-    "key: every service answers on the same status key, so one query sees one service (a "
-    "gathering status sees the others only when a later query happens to keep theirs)",
-)
 def test_one_query_hears_every_service(two_services: tuple[zenoh.Session, list[str]]) -> None:
     client, zids = two_services
     replies = query_status(client, timeout=1.0, gather=False)

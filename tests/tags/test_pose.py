@@ -57,11 +57,6 @@ def test_a_detected_fronto_parallel_tag_faces_the_camera() -> None:
     assert _reprojection_px(pose, corners, 0.2, VGA) < 0.25
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="OpenCV 5.0's IPPE_SQUARE returns the identity rotation (or NaN) for some exactly "
-    "noise-free quads; estimate_pose passes it on (its distance is right)",
-)
 def test_an_exactly_fronto_parallel_tag_reprojects_onto_its_corners() -> None:
     corners = _square(269.5, 189.5, 100)
     pose = estimate_pose(corners, 0.2, VGA)

@@ -26,7 +26,10 @@ def query_status(
     deadline = time.monotonic() + timeout
     by_service: dict[str, dict[str, Any]] = {}
     while (left := deadline - time.monotonic()) > 0:
-        for reply in session.get(key, timeout=left):
+        # every service answers on the same key: without consolidation none of them is
+        # dropped as a duplicate of another's reply
+        replies = session.get(key, timeout=left, consolidation=zenoh.ConsolidationMode.NONE)
+        for reply in replies:
             if reply.ok is None:
                 continue
             try:

@@ -1,7 +1,8 @@
 """Tag pose and distance from camera intrinsics and the tag's physical size.
 
 Images are assumed rectified (the ZED wrapper publishes rectified left images), so lens
-distortion is ignored. The pose is OpenCV's IPPE_SQUARE solution of the four corners.
+distortion is ignored. The pose is OpenCV's IPPE_SQUARE solution of the four corners, or
+SQPNP's where IPPE_SQUARE's does not reproject onto them.
 """
 
 from __future__ import annotations
@@ -48,24 +49,47 @@ def _object_points(size_m: float) -> npt.NDArray[np.float64]:
     )
 
 
+#: A solution whose corners reproject farther than this from the detected ones (pixels) is
+#: not trusted: IPPE_SQUARE can return the identity rotation, or NaN, for an exactly
+#: fronto-parallel, noise-free quad.
+MAX_REPROJECTION_PX = 1.0
+#: Solvers in the order they are tried: IPPE_SQUARE (made for square markers), then SQPNP.
+_SOLVERS = (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP)
+
+
 def estimate_pose(
     corners: npt.NDArray[np.floating], size_m: float, intrinsics: Intrinsics
 ) -> Pose | None:
-    """Pose of a square tag of edge ``size_m`` seen at ``corners``; None if it cannot be solved."""
+    """Pose of a square tag of edge ``size_m`` seen at ``corners``; None if it cannot be solved.
+
+    The first solver's solution whose corners reproject within MAX_REPROJECTION_PX of
+    ``corners``; otherwise the one that reprojects closest.
+    """
     if size_m <= 0.0:
         return None
     image_points = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    ok, rvec, tvec = cv2.solvePnP(
-        _object_points(size_m),
-        image_points,
-        intrinsics.matrix(),
-        None,
-        flags=cv2.SOLVEPNP_IPPE_SQUARE,
-    )
-    if not ok:
+    if not np.all(np.isfinite(image_points)):
         return None
-    r = rvec.reshape(3)
-    t = tvec.reshape(3)
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
-        return None
-    return Pose((float(r[0]), float(r[1]), float(r[2])), (float(t[0]), float(t[1]), float(t[2])))
+    object_points = _object_points(size_m)
+    camera = intrinsics.matrix()
+    best: tuple[float, Pose] | None = None
+    for solver in _SOLVERS:
+        try:
+            ok, rvec, tvec = cv2.solvePnP(object_points, image_points, camera, None, flags=solver)
+        except cv2.error:
+            continue  # degenerate corners (SQPNP refuses collinear points)
+        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+            continue
+        projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera, None)
+        error = float(np.abs(projected.reshape(4, 2) - image_points).max())
+        if not np.isfinite(error):
+            continue
+        r, tr = rvec.reshape(3), tvec.reshape(3)
+        pose = Pose(
+            (float(r[0]), float(r[1]), float(r[2])), (float(tr[0]), float(tr[1]), float(tr[2]))
+        )
+        if error <= MAX_REPROJECTION_PX:
+            return pose
+        if best is None or error < best[0]:
+            best = (error, pose)
+    return None if best is None else best[1]
