@@ -14,7 +14,8 @@ PYTHON ?= $(shell for p in python3.13 python3.12 python3.11 python3; do \
 	&& { echo $$p; break; }; done)
 SETTINGS ?= config/perception.toml
 ARGS ?=
-PYTEST_ARGS ?=
+# one pytest worker per core; the tests of one bench run share a worker (tests/bench/conftest.py)
+PYTEST_ARGS ?= -n auto --dist loadgroup
 
 .PHONY: venv run demo echo test lint typecheck pytest bench tools clean
 

@@ -5,7 +5,7 @@ labelled corpus (made-up items: the real corpus is not in CI)."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +14,13 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from zenoh_perception.bench.framesets import Plan
 from zenoh_perception.cli import main as cli
 from zenoh_perception.scene import render_markers
 
 W, H = 640, 480
+#: The plan of the ``quick`` run: ``--quick`` with fewer frames, to keep the suite short.
+QUICK_PLAN = replace(Plan.quick(), frames=3, video_frames=8)
 
 
 @dataclass(frozen=True)
@@ -36,10 +39,19 @@ def _bench(folder: Path, *argv: str) -> BenchRun:
     return BenchRun(code, report, plot)
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist, the tests of one bench run go to one worker, which runs it once."""
+    for item in items:
+        if {"quick", "quick_no_shm"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.xdist_group("bench-run"))
+
+
 @pytest.fixture(scope="session")
 def quick(tmp_path_factory: pytest.TempPathFactory) -> BenchRun:
     """``bench --quick``: every frame set, end to end and throughput, shared memory."""
-    return _bench(tmp_path_factory.mktemp("bench"), "--quick")
+    plan = QUICK_PLAN
+    argv = ("--quick", "--frames", str(plan.frames), "--video-frames", str(plan.video_frames))
+    return _bench(tmp_path_factory.mktemp("bench"), *argv)
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,7 @@ from typing import Any
 import cv2
 import pytest
 
-from tests.bench.conftest import BenchRun
+from tests.bench.conftest import QUICK_PLAN, BenchRun
 from zenoh_perception.bench import generated
 from zenoh_perception.bench.framesets import RESOLUTIONS, Plan
 from zenoh_perception.bench.scoring import Tally
@@ -29,7 +29,7 @@ def test_the_exit_code_follows_the_goals(quick: BenchRun, quick_no_shm: BenchRun
 def test_the_report_has_every_part_and_the_plan(quick: BenchRun) -> None:
     report = quick.report
     assert set(report) == REPORT_KEYS
-    plan = Plan.quick()
+    plan = QUICK_PLAN
     assert report["plan"] == {
         "frames_per_resolution": plan.frames,
         "video_frames": plan.video_frames,
@@ -44,7 +44,7 @@ def test_the_report_has_every_part_and_the_plan(quick: BenchRun) -> None:
 
 def test_every_frame_set_has_both_detectors_with_sane_figures(quick: BenchRun) -> None:
     report = quick.report
-    quick_plan = Plan.quick()
+    quick_plan = QUICK_PLAN
     assert set(report["sets"]) == {
         *RESOLUTIONS,
         "video",
