@@ -252,3 +252,13 @@ def run_cli(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[s
 
 # the loopback helpers are the benchmarks' own (one implementation), re-exported for the tests
 __all__ = ["free_port", "loopback_config", "loopback_endpoint"]
+
+
+def json_objects(text: str) -> list[dict[str, object]]:
+    """Every JSON object printed in ``text`` (pretty-printed ones included), in order."""
+    decoder = json.JSONDecoder()
+    objects, index = [], 0
+    while (index := text.find("{", index)) != -1:
+        value, index = decoder.raw_decode(text, index)
+        objects.append(value)
+    return objects

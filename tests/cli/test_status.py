@@ -8,19 +8,10 @@ import json
 import pytest
 import zenoh
 
-from tests.helpers import loopback_config, open_session
+from tests.helpers import json_objects, loopback_config, open_session
 from zenoh_perception.cli import status
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
-
-
-def _json_objects(text: str) -> list[dict[str, object]]:
-    decoder = json.JSONDecoder()
-    objects, index = [], 0
-    while (index := text.find("{", index)) != -1:
-        value, index = decoder.raw_decode(text, index)
-        objects.append(value)
-    return objects
 
 
 def test_the_status_of_a_running_service_is_printed_as_json(endpoint: str) -> None:
@@ -30,7 +21,7 @@ def test_the_status_of_a_running_service_is_printed_as_json(endpoint: str) -> No
         code = status.main(loopback_config(connect=[endpoint]), timeout=2.0, out=out)
         zid = str(session.zid())
     assert code == 0
-    (reply,) = _json_objects(out.getvalue())
+    (reply,) = json_objects(out.getvalue())
     assert (reply["service"], reply["zid"]) == ("zenoh-perception", zid)
     assert reply["settings"] == json.loads(json.dumps(settings.as_dict()))
     assert reply["frames"] == {"received": 0, "processed": 0, "dropped": 0, "rejected": 0}
@@ -42,7 +33,7 @@ def test_another_status_key(endpoint: str) -> None:
         out = io.StringIO()
         conf = loopback_config(connect=[endpoint])
         assert status.main(conf, key="rover/perception/status", timeout=2.0, out=out) == 0
-    (reply,) = _json_objects(out.getvalue())
+    (reply,) = json_objects(out.getvalue())
     assert reply["settings"] == json.loads(json.dumps(settings.as_dict()))
     assert settings.status_key == "rover/perception/status"
 

@@ -1,5 +1,5 @@
-"""OpenCV's ArUco detector with its default parameters: whole frames, regions of a frame (at
-full or reduced scale) and the quads it could not read."""
+"""OpenCV's ArUco detector with its default parameters: whole frames, and regions of a frame
+(at full or reduced scale) read as the whole frame would be."""
 
 from __future__ import annotations
 
@@ -75,14 +75,20 @@ def test_a_colour_region_is_read_too() -> None:
     assert np.abs(found.corners - _square(400, 250, 120)).max() < 1.0
 
 
-def test_a_square_that_is_no_marker_is_a_rejected_quad() -> None:
-    image = np.full((H, W), 255, dtype=np.uint8)
-    image[100:220, 100:220] = 0  # a black square: a candidate, but no code inside
-    found, rejected = OpenCvDetector("DICT_4X4_50").detect_with_rejected(image)
-    assert found == []
-    assert rejected and all(quad.shape == (4, 2) for quad in rejected)
-    centres = [quad.mean(axis=0) for quad in rejected]
-    assert any(np.abs(c - (159.5, 159.5)).max() < 5.0 for c in centres)
+def test_a_region_keeps_the_whole_frame_s_smallest_marker() -> None:
+    # OpenCV's smallest marker perimeter is 3 % of the image's larger side: 120 px on a frame
+    # 4,000 px wide, so a whole-frame read skips a 28 px marker (perimeter 112 px)
+    frame = _gray(render_markers(4000, 200, [(5, _square(2000, 60, 28))]))
+    detector = OpenCvDetector("DICT_4X4_50")
+    assert detector.detect(frame) == []
+    region = np.ascontiguousarray(frame[20:140, 1960:2080])
+    assert detector.detect_region(region, (1960, 20), frame_side=4000) == []
+    # a region read on its own terms finds it, and whole frames still use OpenCV's own rate
+    (found,) = detector.detect_region(region, (1960, 20))
+    assert found.tag_id == 5
+    assert detector.detect(frame) == []
+    wide = _gray(render_markers(1000, 200, [(5, _square(500, 60, 28))]))
+    assert [d.tag_id for d in detector.detect(wide)] == [5]
 
 
 def test_opencv_output_becomes_detections_shifted_by_the_offset() -> None:

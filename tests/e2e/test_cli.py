@@ -23,6 +23,7 @@ from tests.helpers import (
     Collector,
     OutputLines,
     cli_command,
+    json_objects,
     log_events,
     open_session,
     parse_pairs,
@@ -438,15 +439,6 @@ def test_run_says_nothing_of_endpoints_it_reached(endpoint: str) -> None:
     assert log_events(output, "unreachable") == []
 
 
-def _json_objects(text: str) -> list[dict[str, object]]:
-    decoder = json.JSONDecoder()
-    objects, index = [], 0
-    while (index := text.find("{", index)) != -1:
-        value, index = decoder.raw_decode(text, index)
-        objects.append(value)
-    return objects
-
-
 def test_status_gathers_every_service_for_its_whole_timeout(endpoint: str) -> None:
     other = loopback_endpoint()
     with (
@@ -459,7 +451,7 @@ def test_status_gathers_every_service_for_its_whole_timeout(endpoint: str) -> No
         result = run_cli("status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "3")
         took = time.monotonic() - started
     assert result.returncode == 0, result.stderr
-    replies = _json_objects(result.stdout)
+    replies = json_objects(result.stdout)
     assert len({reply["zid"] for reply in replies}) == 2
     assert took >= 3.0  # it listened for the whole timeout
 

@@ -60,27 +60,44 @@ class OpenCvDetector:
 
     def __init__(self, dictionary: str = "DICT_4X4_50", parameters: Any = None) -> None:
         params = parameters if parameters is not None else cv2.aruco.DetectorParameters()
+        self._params = params
+        self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        self._set_perimeter_rate(1)
         corners, ids, _rejected = self._detector.detectMarkers(gray)
         return detections_from_opencv(corners, ids)
 
     def detect_region(
-        self, image: npt.NDArray[np.uint8], offset: tuple[int, int], scale: int = 1
+        self,
+        image: npt.NDArray[np.uint8],
+        offset: tuple[int, int],
+        scale: int = 1,
+        frame_side: int = 0,
     ) -> list[Detection]:
         """Markers in ``image``, a region of a larger frame whose top-left pixel is ``offset``
-        (x, y) there, in that frame's coordinates. ``image`` may be grey or BGR. With
-        ``scale`` > 1 the region is read at 1/scale of its size (a large marker needs no more
-        pixels to be read); its corners are then refined at full resolution by OpenCV's
-        sub-pixel corner search in a window of the scale's size."""
-        if scale == 1:
-            corners, ids, _rejected = self._detector.detectMarkers(image)
-            return detections_from_opencv(corners, ids, offset)
+        (x, y) there, in that frame's coordinates. ``image`` may be grey or BGR.
+
+        With ``scale`` > 1 the region is read at 1/scale of its size (a large marker needs no
+        more pixels to be read); its corners are then refined at full resolution by OpenCV's
+        sub-pixel corner search in a window of the scale's size.
+
+        ``frame_side`` (the larger side of the whole frame, pixels) keeps the whole frame's
+        smallest marker: OpenCV sets it as a fraction of the image's larger side
+        (``minMarkerPerimeterRate``), so a small region would otherwise take every speck of
+        texture for a candidate, cost far more per pixel than the frame, and report markers
+        smaller than a read of the whole frame would.
+        """
         height, width = image.shape[:2]
-        size = (max(1, width // scale), max(1, height // scale))
-        small = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+        small = image
+        if scale > 1:
+            size = (max(1, width // scale), max(1, height // scale))
+            small = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+        self._set_perimeter_rate(frame_side / (scale * max(small.shape[:2])) if frame_side else 1)
         corners, ids, _rejected = self._detector.detectMarkers(small)
+        if scale == 1:
+            return detections_from_opencv(corners, ids, offset)
         found = detections_from_opencv(corners, ids)
         if not found:
             return []
@@ -93,11 +110,9 @@ class OpenCvDetector:
         quads += np.asarray(offset, dtype=np.float32)
         return [Detection(d.tag_id, quads[4 * i : 4 * i + 4]) for i, d in enumerate(found)]
 
-    def detect_with_rejected(
-        self, gray: npt.NDArray[np.uint8]
-    ) -> tuple[list[Detection], list[npt.NDArray[np.float32]]]:
-        """Markers in ``gray``, and the quads OpenCV considered but could not read (each
-        (4, 2) float32)."""
-        corners, ids, rejected = self._detector.detectMarkers(gray)
-        quads = [np.asarray(q, dtype=np.float32).reshape(4, 2) for q in rejected]
-        return detections_from_opencv(corners, ids), quads
+    def _set_perimeter_rate(self, factor: float) -> None:
+        """``minMarkerPerimeterRate`` at ``factor`` times the configured one (1: as configured)."""
+        rate = self._min_perimeter_rate * factor
+        if rate != self._params.minMarkerPerimeterRate:
+            self._params.minMarkerPerimeterRate = rate
+            self._detector.setDetectorParameters(self._params)

@@ -240,6 +240,7 @@ class TrackingDetector:
         """Markers in the regions around the known ones; None when one that the previous
         frame showed is missing."""
         height, width = gray.shape[:2]
+        frame_side = max(width, height)
         wanted = [(t.region(width, height), t.scale()) for t in self._tracks]
         found: list[Detection] = []
         read: list[tuple[Rect, int]] = []
@@ -248,7 +249,8 @@ class TrackingDetector:
                 continue  # read already, as finely
             read.append((rect, scale))
             x0, y0, x1, y1 = rect
-            for detection in self._opencv.detect_region(gray[y0:y1, x0:x1], (x0, y0), scale):
+            region = gray[y0:y1, x0:x1]
+            for detection in self._opencv.detect_region(region, (x0, y0), scale, frame_side):
                 if not any(same_marker(detection, other) for other in found):
                     found.append(detection)
         self.counters["regions"] += len(read)
