@@ -4,12 +4,14 @@ the service's detector side by side (made-up items: the real corpus is not in CI
 from __future__ import annotations
 
 import json
+import signal
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from tests.bench.conftest import labelled
+from zenoh_perception.bench import dataset
 from zenoh_perception.bench.dataset import DatasetError, Item, evaluate, frames, load_manifest
 from zenoh_perception.bench.scoring import size_bucket
 from zenoh_perception.cli import main as cli
@@ -148,3 +150,24 @@ def test_videos_go_end_to_end_through_service_processes_and_the_floor(corpus: Pa
     names = [g["goal"] for g in report["goals"]]
     assert "video walk: found by the service process >= OpenCV default" in names
     assert any(n.startswith("videos: service (detector=opencv) mean e2e - floor") for n in names)
+
+
+def test_sigterm_during_the_bench_unwinds_through_its_finally_blocks(
+    corpus: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Python's default SIGTERM would end the bench on the spot and leave its service
+    # processes running: while the items are evaluated, SIGTERM must raise SystemExit
+    handlers: list[object] = []
+
+    def evaluating(*_args: object, **_kwargs: object) -> dict[str, Any]:
+        handlers.append(signal.getsignal(signal.SIGTERM))
+        raise SystemExit(143)
+
+    monkeypatch.setattr(dataset, "evaluate", evaluating)
+    before = signal.getsignal(signal.SIGTERM)
+    argv = ["bench", "--dataset", str(corpus / "manifest.json"), "--json", str(tmp_path / "r")]
+    with pytest.raises(SystemExit):
+        cli.main(argv)
+    (during,) = handlers
+    assert during not in (signal.SIG_DFL, signal.SIG_IGN, before)
+    assert signal.getsignal(signal.SIGTERM) == before

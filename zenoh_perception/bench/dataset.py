@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from zenoh_perception.bench.e2e import lockstep_images, record_detections
 from zenoh_perception.bench.goals import dataset_goals
-from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
+from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.report import format_dataset_report
 from zenoh_perception.bench.runners import PAIR, Runner, pair, rotation
@@ -321,18 +321,20 @@ def main(args: argparse.Namespace, settings: Settings) -> int:
     data: Path = args.data if args.data is not None else manifest.parent / "data"
     items = load_manifest(manifest)
     progress = Progress(len(items))
-    try:
-        report = evaluate(
-            items,
-            data,
-            settings,
-            max_video_frames=args.max_video_frames,
-            e2e=args.e2e,
-            shm=not args.no_shm,
-            progress=progress,
-        )
-    finally:
-        progress.close()
+    # SIGTERM stops the bench through the finally blocks that stop its service processes
+    with sigterm_exits():
+        try:
+            report = evaluate(
+                items,
+                data,
+                settings,
+                max_video_frames=args.max_video_frames,
+                e2e=args.e2e,
+                shm=not args.no_shm,
+                progress=progress,
+            )
+        finally:
+            progress.close()
     print(format_dataset_report(report))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
