@@ -178,15 +178,10 @@ class OutputLines:
         when no such line came within ``timeout`` s."""
         deadline = time.monotonic() + timeout
         while True:
-            try:
-                line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
-                msg = f"no line with {text!r} within {timeout} s:\n{''.join(self.seen)}"
-                raise TimeoutError(msg) from None
+            line = self._next(deadline, f"no line with {text!r} within {timeout} s")
             if line is None:
                 msg = f"{text!r} not in the output:\n{''.join(self.seen)}"
                 raise AssertionError(msg)
-            self.seen.append(line)
             if text in line:
                 return line
 
@@ -195,16 +190,23 @@ class OutputLines:
         is exiting); TimeoutError when the output has not ended within ``timeout`` s."""
         deadline = time.monotonic() + timeout
         rest: list[str] = []
-        while True:
-            try:
-                line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Empty:
-                msg = f"the output did not end within {timeout} s"
-                raise TimeoutError(msg) from None
-            if line is None:
-                return rest
-            self.seen.append(line)
+        while (
+            line := self._next(deadline, f"the output did not end within {timeout} s")
+        ) is not None:
             rest.append(line)
+        return rest
+
+    def _next(self, deadline: float, late: str) -> str | None:
+        """The next line (kept in ``seen``), None at the end of the output; TimeoutError with
+        ``late`` and the output so far when none came before ``deadline``."""
+        try:
+            line = self._lines.get(timeout=max(0.0, deadline - time.monotonic()))
+        except queue.Empty:
+            msg = f"{late}:\n{''.join(self.seen)}"
+            raise TimeoutError(msg) from None
+        if line is not None:
+            self.seen.append(line)
+        return line
 
 
 def wait_until(

@@ -52,6 +52,11 @@ DICT_4X4_50 = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
 Detections = dict[int, list[Floats]]
 
 
+def facing(tag_id: int, size_m: float, x: float, y: float, z: float) -> MarkerPose:
+    """A marker of ``size_m`` facing the camera upright, its centre at (x, y, z) metres."""
+    return MarkerPose(tag_id, size_m, (x, y, z))
+
+
 def aruco_detect(image: Image, *, subpix: bool = False) -> Detections:
     """OpenCV's detections {id: [corners (4, 2), ...]} of DICT_4X4_50 markers on a BGRA image
     (default parameters; with ``subpix``, sub-pixel corner refinement)."""

@@ -15,6 +15,7 @@ from tests.scene.cases import (
     SIZE_NAMES,
     SMALL,
     aruco_detect,
+    facing,
     random_scene_sized,
     tag_sizes,
 )
@@ -27,10 +28,6 @@ from zenoh_perception.scene import (
     SceneError,
     SceneGenerator,
 )
-
-
-def _facing(tag_id: int, size_m: float, x: float, y: float, z: float) -> MarkerPose:
-    return MarkerPose(tag_id, size_m, (x, y, z))
 
 
 def _same_scene(a: Scene, b: Scene) -> bool:
@@ -108,10 +105,10 @@ def test_scene_from_poses_flags_occlusion_and_skips_hidden_objects() -> None:
     gen = SceneGenerator(CameraModel.named("VGA"), seed=0)
     scene = gen.scene_from_poses(
         [
-            _facing(1, 0.3, 0.0, 0.0, 3.0),  # far
-            _facing(2, 0.2, 0.05, 0.0, 1.5),  # near, in front of tag 1
-            _facing(3, 0.2, 0.0, 0.0, -1.0),  # behind the camera
-            _facing(4, 0.2, 50.0, 0.0, 2.0),  # far outside the image
+            facing(1, 0.3, 0.0, 0.0, 3.0),  # far
+            facing(2, 0.2, 0.05, 0.0, 1.5),  # near, in front of tag 1
+            facing(3, 0.2, 0.0, 0.0, -1.0),  # behind the camera
+            facing(4, 0.2, 50.0, 0.0, 2.0),  # far outside the image
         ]
     )
     assert scene.ids == (1, 2)

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.scene.cases import facing
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene import (
     CameraModel,
@@ -19,10 +20,6 @@ from zenoh_perception.scene import (
     SceneGenerator,
     square_corners,
 )
-
-
-def _facing(tag_id: int, size_m: float, x: float, y: float, z: float) -> MarkerPose:
-    return MarkerPose(tag_id, size_m, (x, y, z))
 
 
 def test_camera_from_hfov_and_named_resolutions() -> None:
@@ -45,7 +42,7 @@ def test_camera_from_hfov_and_named_resolutions() -> None:
 @pytest.mark.parametrize(("size_m", "z"), [(0.2, 1.0), (0.15, 3.7), (0.3, 8.0)])
 def test_fronto_parallel_size_and_distance(size_m: float, z: float) -> None:
     cam = CameraModel.named("HD720")
-    scene = SceneGenerator(cam, seed=1).scene_from_poses([_facing(4, size_m, 0.1, -0.05, z)])
+    scene = SceneGenerator(cam, seed=1).scene_from_poses([facing(4, size_m, 0.1, -0.05, z)])
     (truth,) = scene.markers
     assert truth.side_px == pytest.approx(cam.fx * size_m / z, rel=1e-9)
     assert truth.distance_m == pytest.approx(math.sqrt(0.1**2 + 0.05**2 + z**2))

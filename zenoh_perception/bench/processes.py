@@ -16,7 +16,6 @@ it puts plain ``bytes``, which Zenoh copies inside the timed interval.
 
 from __future__ import annotations
 
-import json
 import os
 import queue
 import signal
@@ -42,6 +41,7 @@ from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.camera.shm import Loaded, ShmPutter
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.scene import Scene
+from zenoh_perception.service.status import query_status
 from zenoh_perception.wire.frames import RawFrameMeta
 
 Image = npt.NDArray[np.uint8]
@@ -331,10 +331,9 @@ class Remote:
 
     def status(self) -> dict[str, Any]:
         """The service's status (its own counters), from its queryable."""
-        for reply in self._session.get(self.service.status_key, timeout=2.0):
-            if reply.ok is not None:
-                data: dict[str, Any] = json.loads(reply.ok.payload.to_string())
-                return data
+        replies = query_status(self._session, self.service.status_key, 2.0, gather=False)
+        if replies:
+            return replies[0]
         self.service.check()
         raise self.service.failure("no status reply")
 
