@@ -91,6 +91,21 @@ def test_a_region_keeps_the_whole_frame_s_smallest_marker() -> None:
     assert [d.tag_id for d in detector.detect(wide)] == [5]
 
 
+def test_a_smallest_perimeter_skips_smaller_markers_only() -> None:
+    # markers of 40 px (perimeter 160 px) and 120 px (480 px) on one frame
+    frame = _gray(render_markers(W, H, [(3, _square(60, 60, 40)), (7, _square(300, 200, 120))]))
+    detector = OpenCvDetector("DICT_4X4_50")
+    assert sorted(d.tag_id for d in detector.detect(frame, min_perimeter_px=150)) == [3, 7]
+    assert [d.tag_id for d in detector.detect(frame, min_perimeter_px=200)] == [7]
+    assert detector.detect(frame, min_perimeter_px=500) == []
+    # in full-resolution pixels whatever the scale a region is read at
+    region = np.ascontiguousarray(frame[20:360, 20:460])
+    assert [d.tag_id for d in detector.detect_region(region, (20, 20), 2, 0, 200)] == [7]
+    assert sorted(d.tag_id for d in detector.detect_region(region, (20, 20), 2, 0, 150)) == [3, 7]
+    # and the floor is for that read only
+    assert sorted(d.tag_id for d in detector.detect(frame)) == [3, 7]
+
+
 def test_opencv_output_becomes_detections_shifted_by_the_offset() -> None:
     quad = np.array([[[1.0, 2.0], [3.0, 2.0], [3.0, 4.0], [1.0, 4.0]]], dtype=np.float32)
     (detection,) = detections_from_opencv([quad], np.array([[9]]), offset=(10, 20))

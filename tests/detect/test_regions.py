@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from zenoh_perception.detect.regions import around, inside, same_marker, side
+from zenoh_perception.detect.regions import around, inside, perimeter, same_marker, side
 from zenoh_perception.detect.types import Detection
 
 
@@ -63,3 +64,10 @@ def test_around_always_holds_the_points_within_the_frame(
         if 0 <= x < 640 and 0 <= y < 480:
             assert x0 <= max(0.0, x - margin) + 1 and x < x1
             assert y0 <= max(0.0, y - margin) + 1 and y < y1
+
+
+def test_perimeter_is_the_length_of_the_four_sides() -> None:
+    quad = np.array([[0, 0], [30, 0], [30, 40], [0, 40]], dtype=np.float32)
+    assert perimeter(quad) == pytest.approx(140.0)
+    tilted = np.array([[0, 0], [3, 4], [-1, 7], [-4, 3]], dtype=np.float32)  # sides 5
+    assert perimeter(tilted) == pytest.approx(20.0)

@@ -109,6 +109,24 @@ def test_a_scene_cut_is_scanned_at_once() -> None:
     assert tracking.counters["scene_cuts"] == 1
 
 
+def test_a_region_reports_new_markers_down_to_a_third_of_the_followed_one() -> None:
+    # a followed 240 px marker (perimeter 960 px): its region is read for perimeters of 320
+    # px or more, so a new 96 px marker beside it is reported at once and a 50 px one is left
+    # to the next scan
+    config = TrackingConfig(full_scan_period=3, glimpse=False)
+    tracking = TrackingDetector("DICT_4X4_50", config)
+    followed = (8, square(200, 120, 240))
+    tracking.detect(gray(render_markers(W, H, [followed])))
+    frame = gray(
+        render_markers(W, H, [followed, (2, square(455, 200, 96)), (5, square(470, 50, 50))])
+    )
+    assert ids(tracking.detect(frame)) == Counter({8: 1, 2: 1})
+    assert tracking.counters["followed"] == 1
+    assert ids(tracking.detect(frame)) == Counter({8: 1, 2: 1})
+    assert ids(tracking.detect(frame)) == Counter({8: 1, 2: 1, 5: 1})  # the period's scan
+    assert tracking.counters["scans"] == 2
+
+
 def test_a_flickering_tag_is_searched_in_its_region_while_it_coasts() -> None:
     tracking = TrackingDetector("DICT_4X4_50", TrackingConfig(full_scan_period=100))
     with_tag = gray(render_markers(W, H, [(4, square(200, 150, 50)), (6, square(450, 300, 60))]))

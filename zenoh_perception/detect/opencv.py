@@ -64,8 +64,10 @@ class OpenCvDetector:
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
 
-    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
-        self._set_perimeter_rate(1)
+    def detect(self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0) -> list[Detection]:
+        """Markers in the whole image; with ``min_perimeter_px``, none whose perimeter is
+        shorter than that many pixels (never smaller than the configured rate allows)."""
+        self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
         corners, ids, _rejected = self._detector.detectMarkers(gray)
         return detections_from_opencv(corners, ids)
 
@@ -75,6 +77,7 @@ class OpenCvDetector:
         offset: tuple[int, int],
         scale: int = 1,
         frame_side: int = 0,
+        min_perimeter_px: float = 0.0,
     ) -> list[Detection]:
         """Markers in ``image``, a region of a larger frame whose top-left pixel is ``offset``
         (x, y) there, in that frame's coordinates. ``image`` may be grey or BGR.
@@ -87,14 +90,17 @@ class OpenCvDetector:
         smallest marker: OpenCV sets it as a fraction of the image's larger side
         (``minMarkerPerimeterRate``), so a small region would otherwise take every speck of
         texture for a candidate, cost far more per pixel than the frame, and report markers
-        smaller than a read of the whole frame would.
+        smaller than a read of the whole frame would. ``min_perimeter_px`` (full-resolution
+        pixels) raises that floor further: most of OpenCV's time goes to the contours just
+        above it, so a region read for a marker of known size can skip the specks.
         """
         height, width = image.shape[:2]
         small = image
         if scale > 1:
             size = (max(1, width // scale), max(1, height // scale))
             small = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
-        self._set_perimeter_rate(frame_side / (scale * max(small.shape[:2])) if frame_side else 1)
+        floor = max(self._min_perimeter_rate * frame_side, min_perimeter_px) / scale
+        self._set_min_perimeter(max(small.shape[:2]), floor)
         corners, ids, _rejected = self._detector.detectMarkers(small)
         if scale == 1:
             return detections_from_opencv(corners, ids, offset)
@@ -110,9 +116,10 @@ class OpenCvDetector:
         quads += np.asarray(offset, dtype=np.float32)
         return [Detection(d.tag_id, quads[4 * i : 4 * i + 4]) for i, d in enumerate(found)]
 
-    def _set_perimeter_rate(self, factor: float) -> None:
-        """``minMarkerPerimeterRate`` at ``factor`` times the configured one (1: as configured)."""
-        rate = self._min_perimeter_rate * factor
+    def _set_min_perimeter(self, image_side: int, floor_px: float) -> None:
+        """``minMarkerPerimeterRate`` for an image whose larger side is ``image_side``: the
+        configured rate, or higher so that no marker's perimeter is under ``floor_px``."""
+        rate = max(self._min_perimeter_rate, floor_px / max(1, image_side))
         if rate != self._params.minMarkerPerimeterRate:
             self._params.minMarkerPerimeterRate = rate
             self._detector.setDetectorParameters(self._params)

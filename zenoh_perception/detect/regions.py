@@ -16,6 +16,11 @@ def side(quad: npt.NDArray[np.float32]) -> float:
     return float(np.ptp(quad, axis=0).max())
 
 
+def perimeter(quad: npt.NDArray[np.float32]) -> float:
+    """The length of a quad's four sides, pixels."""
+    return float(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1).sum())
+
+
 def around(points: npt.NDArray[np.float32], margin: float, width: int, height: int) -> Rect:
     """The bounding box of ``points`` grown by ``margin`` on every side, clipped to the frame."""
     low = points.min(axis=0)

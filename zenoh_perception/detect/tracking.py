@@ -11,15 +11,17 @@ thumbnail (one pixel per 16 x 16 block), and:
   markers changed by more than ``appear_level`` (something appeared there); when a followed
   marker is not found again where it was expected (it moved farther than its region, was
   hidden or left); when OpenCV reads, on the frame at a quarter of its size (a glimpse, a
-  sixteenth of the pixels), a marker that no known one explains (a large marker turning into
-  view); and at least every ``full_scan_period`` frames, so a marker that enters a followed
-  scene unnoticed is reported within that many frames;
+  sixteenth of the pixels, for markers of GLIMPSE_MIN_SIDE_PX or more), a marker that no
+  known one explains (a large marker turning into view); and at least every
+  ``full_scan_period`` frames, so a marker that enters a followed scene unnoticed is reported
+  within that many frames;
 - otherwise the frame is followed: each known marker is read in a region around the place its
   last two sightings predict (constant velocity), with a margin of half its side plus its
   motion, at the scale that keeps its side at least READ_SIDE_PX (a large marker needs no
   more pixels to be read; its corners are then refined at full resolution). A region inside
-  one already read as finely is skipped and a marker read twice is reported once. Any
-  marker OpenCV decides on in a region is reported, known or new;
+  one already read as finely is skipped and a marker read twice is reported once. A region
+  is read for markers of at least a third of the followed one's perimeter
+  (REGION_MIN_SHARE): any such marker OpenCV decides on there is reported, known or new;
 - a marker that neither its region nor the scan that followed found is still read in its
   region for ``coast_frames`` frames: a small or blurred marker that OpenCV reads on some
   frames and not on others is read again as soon as it can be, not at the next scan;
@@ -39,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
-from zenoh_perception.detect.regions import Rect, around, inside, same_marker, side
+from zenoh_perception.detect.regions import Rect, around, inside, perimeter, same_marker, side
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 
@@ -50,6 +52,13 @@ Change = npt.NDArray[np.int16]
 BLOCK: Final = 16
 #: Scale of the glimpse: the frame read at 1/GLIMPSE of its size between scans.
 GLIMPSE: Final = 4
+#: Smallest marker the glimpse looks for, side in full-resolution pixels: smaller ones have too
+#: few pixels left at 1/GLIMPSE to be read, and skipping their specks makes the glimpse cheap.
+GLIMPSE_MIN_SIDE_PX: Final = 32.0
+#: A followed marker's region is read for markers at least this share of its perimeter: a
+#: marker does not shrink to a third between two frames, and OpenCV spends most of its time
+#: on the small contours this skips. A smaller marker new in the region is left to the scans.
+REGION_MIN_SHARE: Final = 1 / 3
 #: Side a followed marker keeps when its region is read at a reduced scale, pixels.
 READ_SIDE_PX: Final = 64.0
 #: Smallest margin of a followed marker's region, pixels (OpenCV needs a quiet zone to read).
@@ -186,8 +195,12 @@ class TrackingDetector:
         no previous frame of this size). Keeps the frame at a quarter of its size for
         :meth:`_glimpsed`."""
         height, width = gray.shape[:2]
-        quarter = (max(1, width // GLIMPSE), max(1, height // GLIMPSE))
-        self._small = np.asarray(cv2.resize(gray, quarter, interpolation=cv2.INTER_AREA), np.uint8)
+        # halved twice: OpenCV's area resize is several times faster for a factor of 2
+        small: Gray = gray
+        for factor in (2, GLIMPSE):
+            size = (max(1, width // factor), max(1, height // factor))
+            small = np.asarray(cv2.resize(small, size, interpolation=cv2.INTER_AREA), np.uint8)
+        self._small = small
         size = (max(1, width // BLOCK), max(1, height // BLOCK))
         thumb = cv2.resize(self._small, size, interpolation=cv2.INTER_AREA).astype(np.int16)
         previous, self._thumb = self._thumb, thumb
@@ -210,7 +223,8 @@ class TrackingDetector:
     def _glimpsed(self) -> bool:
         """Whether OpenCV's detector reads, on the frame at a quarter of its size, a marker
         that no known one explains (a large marker turning into view or coming into focus)."""
-        for found in self._opencv.detect(self._small):
+        smallest = 4.0 * GLIMPSE_MIN_SIDE_PX / GLIMPSE
+        for found in self._opencv.detect(self._small, min_perimeter_px=smallest):
             centre = _centre(found.corners) * GLIMPSE + (GLIMPSE - 1) / 2
             if not any(
                 track.tag_id == found.tag_id
@@ -241,16 +255,20 @@ class TrackingDetector:
         frame showed is missing."""
         height, width = gray.shape[:2]
         frame_side = max(width, height)
-        wanted = [(t.region(width, height), t.scale()) for t in self._tracks]
+        wanted = [
+            (t.region(width, height), t.scale(), REGION_MIN_SHARE * perimeter(t.corners))
+            for t in self._tracks
+        ]
         found: list[Detection] = []
-        read: list[tuple[Rect, int]] = []
-        for rect, scale in wanted:
-            if any(inside(rect, done) and s <= scale for done, s in read):
+        read: list[tuple[Rect, int, float]] = []
+        for rect, scale, smallest in wanted:
+            if any(inside(rect, r) and s <= scale and p <= smallest for r, s, p in read):
                 continue  # read already, as finely
-            read.append((rect, scale))
+            read.append((rect, scale, smallest))
             x0, y0, x1, y1 = rect
             region = gray[y0:y1, x0:x1]
-            for detection in self._opencv.detect_region(region, (x0, y0), scale, frame_side):
+            found_here = self._opencv.detect_region(region, (x0, y0), scale, frame_side, smallest)
+            for detection in found_here:
                 if not any(same_marker(detection, other) for other in found):
                     found.append(detection)
         self.counters["regions"] += len(read)
