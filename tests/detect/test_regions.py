@@ -35,6 +35,11 @@ def test_around_grows_the_box_and_clips_it_to_the_frame() -> None:
     assert around(quad, 500, 640, 480) == (0, 0, 640, 480)
     corner = square(0, 0, 10).astype(np.float32)
     assert around(corner, 5, 8, 8) == (0, 0, 8, 8)
+    # wholly outside the frame: an empty box at its edge, not an inverted one
+    x0, y0, x1, y1 = around(square(700, 500, 20).astype(np.float32), 5, 640, 480)
+    assert x0 == x1 == 640 and y0 == y1 == 480
+    x0, y0, x1, y1 = around(square(-100, -100, 20).astype(np.float32), 5, 640, 480)
+    assert x0 == x1 == 0 and y0 == y1 == 0
 
 
 def test_inside_is_containment_edges_included() -> None:

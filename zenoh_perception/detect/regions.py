@@ -22,13 +22,14 @@ def perimeter(quad: npt.NDArray[np.float32]) -> float:
 
 
 def around(points: npt.NDArray[np.float32], margin: float, width: int, height: int) -> Rect:
-    """The bounding box of ``points`` grown by ``margin`` on every side, clipped to the frame."""
+    """The bounding box of ``points`` grown by ``margin`` on every side, clipped to the frame
+    (empty, never inverted, when it lies wholly outside)."""
     low = points.min(axis=0)
     high = points.max(axis=0)
-    x0 = max(0, int(low[0] - margin))
-    y0 = max(0, int(low[1] - margin))
-    x1 = min(width, int(high[0] + margin) + 2)
-    y1 = min(height, int(high[1] + margin) + 2)
+    x0 = min(width, max(0, int(low[0] - margin)))
+    y0 = min(height, max(0, int(low[1] - margin)))
+    x1 = max(x0, min(width, int(high[0] + margin) + 2))
+    y1 = max(y0, min(height, int(high[1] + margin) + 2))
     return x0, y0, x1, y1
 
 
