@@ -8,5 +8,6 @@ built from: :mod:`.progress` (the progress bar), :mod:`.scoring` (what a detecto
 :mod:`.framesets` (the generated frames), :mod:`.processes` (services in processes of their
 own, the bench's camera), :mod:`.e2e` (lockstep end to end through them and :mod:`.floor`,
 the transport floor), :mod:`.throughput`, :mod:`.goals`, :mod:`.report` (the text reports) and
-:mod:`.plot`. :mod:`.flood`, :mod:`.soak` and :mod:`.fuzz` load, soak and fuzz the service.
+:mod:`.plot`. :mod:`.flood`, :mod:`.soak` and :mod:`.fuzz` (its payloads in
+:mod:`.fuzz_cases`) load, soak and fuzz the service, driving it with :mod:`.rig`.
 """

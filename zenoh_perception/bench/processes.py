@@ -35,7 +35,7 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_endpoint
-from zenoh_perception.bench.flood import frames_of, is_idle
+from zenoh_perception.bench.rig import frames_of, is_idle
 from zenoh_perception.bench.runners import DICTIONARY
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.camera.shm import Loaded, ShmPutter

@@ -28,7 +28,8 @@ from typing import Any, TextIO
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.flood import (
+from zenoh_perception.bench.processes import start_service, stop_service
+from zenoh_perception.bench.rig import (
     Camera,
     MarkerFrame,
     ProcSample,
@@ -39,7 +40,6 @@ from zenoh_perception.bench.flood import (
     proc_sample,
     wait_status,
 )
-from zenoh_perception.bench.processes import start_service, stop_service
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.wire.records import decode_record

@@ -19,7 +19,6 @@ import numpy as np
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.flood import frames_of
 from zenoh_perception.bench.framesets import Plan
 from zenoh_perception.bench.processes import (
     E2E_DETECTORS,
@@ -31,6 +30,7 @@ from zenoh_perception.bench.processes import (
     settle,
 )
 from zenoh_perception.bench.progress import Progress, tick
+from zenoh_perception.bench.rig import frames_of
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 
