@@ -56,10 +56,10 @@ def detections_from_opencv(
 
 
 class OpenCvDetector:
-    """OpenCV's ArUco detector (default: OpenCV's default parameters) on every whole image."""
+    """OpenCV's ArUco detector, with OpenCV's default parameters."""
 
-    def __init__(self, dictionary: str = "DICT_4X4_50", parameters: Any = None) -> None:
-        params = parameters if parameters is not None else cv2.aruco.DetectorParameters()
+    def __init__(self, dictionary: str = "DICT_4X4_50") -> None:
+        params = cv2.aruco.DetectorParameters()
         self._params = params
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
