@@ -8,13 +8,15 @@ import signal
 from pathlib import Path
 from typing import Any
 
+import cv2
 import pytest
 
-from tests.bench.conftest import labelled
+from tests.bench.conftest import H, W, labelled, square
 from zenoh_perception.bench import dataset
 from zenoh_perception.bench.dataset import DatasetError, Item, evaluate, frames, load_manifest
 from zenoh_perception.bench.scoring import size_bucket
 from zenoh_perception.cli import main as cli
+from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings
 
 
@@ -75,6 +77,20 @@ def test_frames_are_bgra_and_a_missing_file_is_an_error(corpus: Path, tmp_path: 
         list(frames(still, tmp_path, max_frames=1))
 
 
+def test_a_mirrored_item_is_flipped_back_before_it_is_read(tmp_path: Path) -> None:
+    # a camera whose software stores frames mirrored: its markers read as no id until flipped
+    shown = render_markers(W, H, [(3, square(200, 150, 160))])
+    cv2.imwrite(str(tmp_path / "flip.png"), cv2.flip(cv2.cvtColor(shown, cv2.COLOR_BGRA2BGR), 1))
+    found = {}
+    for mirrored in (False, True):
+        (item,) = load_manifest_from(
+            {"items": [labelled("flip", "image", {"3": 1}, mirrored=mirrored)]}, tmp_path
+        )
+        row = evaluate([item], tmp_path, Settings())["items"][0]
+        found[mirrored] = (row["opencv"]["found"], row["service"]["found"])
+    assert found == {False: (0, 0), True: (1, 1)}
+
+
 def load_manifest_from(data: dict[str, Any], folder: Path) -> list[Item]:
     path = folder / "m.json"
     path.write_text(json.dumps(data), encoding="utf-8")
@@ -101,6 +117,7 @@ def test_an_item_is_read_with_its_labels(tmp_path: Path) -> None:
         ({"items": [labelled("a", "image", {}), labelled("a", "image", {})]}, "used twice"),
         ({"items": [labelled("../a", "image", {})]}, "plain file name"),
         ({"items": ["a"]}, "not a table"),
+        ({"items": [labelled("a", "image", {}, mirrored="yes")]}, "mirrored must be"),
         ({"things": []}, "expected"),
     ],
 )

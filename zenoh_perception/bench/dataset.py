@@ -67,6 +67,7 @@ class Item:
     unsure: bool = False
     camera: str = "unknown"
     conditions: tuple[str, ...] = ()
+    mirrored: bool = False  # stored mirrored left to right by the capture software
 
     @property
     def negative(self) -> bool:
@@ -81,6 +82,10 @@ def _item(raw: Any, index: int) -> Item:
         name = str(raw["name"])
         kind = str(raw["kind"])
         markers = {int(k): int(v) for k, v in dict(raw.get("markers", {})).items()}
+        mirrored = raw.get("mirrored", False)
+        if not isinstance(mirrored, bool):
+            msg = f"mirrored must be true or false, not {mirrored!r}"
+            raise ValueError(msg)
         item = Item(
             name=name,
             kind=kind,
@@ -90,6 +95,7 @@ def _item(raw: Any, index: int) -> Item:
             unsure=bool(raw.get("unsure", False)),
             camera=str(raw.get("camera", "unknown")),
             conditions=tuple(str(c) for c in raw.get("conditions", ())),
+            mirrored=mirrored,
         )
     except (KeyError, TypeError, ValueError, PerceptionError) as err:
         msg = f"item {index} ({raw.get('name', '?')}): {err}"
@@ -153,12 +159,18 @@ def _read_image(path: Path) -> Image:
 
 
 def frames(item: Item, data: Path, max_frames: int) -> Iterator[Image]:
-    """The item's frames as BGRA images (a video: at most ``max_frames``).
+    """The item's frames as BGRA images (a video: at most ``max_frames``), flipped back left
+    to right when the item was stored mirrored.
 
     Raises:
         DatasetError: missing or unreadable file.
 
     """
+    for image in _stored_frames(item, data, max_frames):
+        yield np.asarray(cv2.flip(image, 1), np.uint8) if item.mirrored else image
+
+
+def _stored_frames(item: Item, data: Path, max_frames: int) -> Iterator[Image]:
     if item.kind == "sequence":
         folder = data / item.name
         paths = sorted(p for p in folder.iterdir() if p.is_file()) if folder.is_dir() else []
