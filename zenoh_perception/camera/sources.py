@@ -79,17 +79,16 @@ def _period_ns(rate_hz: float) -> int:
     return max(1, round(1e9 / rate_hz))
 
 
-def _raw_frame(
-    bgr_or_gray: npt.NDArray[np.uint8], *, stamp_ns: int, seq: int, frame_id: str
-) -> tuple[bytes, bytes]:
-    """BGRA payload and msgpack attachment of one decoded image, as a ZED camera sends."""
-    image = bgr_or_gray
-    if image.ndim == 2:
-        bgra = cv2.cvtColor(image, cv2.COLOR_GRAY2BGRA)
-    elif image.shape[2] == 4:
-        bgra = image
+def _raw_frame(image: npt.ArrayLike, *, stamp_ns: int, seq: int, frame_id: str) -> SourceFrame:
+    """One decoded image (grey, BGR or BGRA) as a ZED camera sends it: BGRA payload and
+    msgpack attachment."""
+    pixels = np.asarray(image, dtype=np.uint8)
+    if pixels.ndim == 2:
+        bgra = cv2.cvtColor(pixels, cv2.COLOR_GRAY2BGRA)
+    elif pixels.shape[2] == 4:
+        bgra = pixels
     else:
-        bgra = cv2.cvtColor(image, cv2.COLOR_BGR2BGRA)
+        bgra = cv2.cvtColor(pixels, cv2.COLOR_BGR2BGRA)
     height, width = int(bgra.shape[0]), int(bgra.shape[1])
     meta = RawFrameMeta(
         width=width,
@@ -99,7 +98,7 @@ def _raw_frame(
         frame_id=frame_id,
         seq=seq,
     )
-    return np.ascontiguousarray(bgra).tobytes(), meta.to_msgpack()
+    return SourceFrame(np.ascontiguousarray(bgra).tobytes(), meta.to_msgpack(), stamp_ns)
 
 
 # -- rosbag2 ---------------------------------------------------------------------------------
@@ -244,14 +243,12 @@ class VideoSource:
                 ok, image = capture.read()
                 if not ok or image is None:
                     return
-                stamp = epoch_ns + index * period
-                payload, attachment = _raw_frame(
-                    np.asarray(image, dtype=np.uint8),
-                    stamp_ns=stamp,
+                yield _raw_frame(
+                    image,
+                    stamp_ns=epoch_ns + index * period,
                     seq=seq_start + index,
                     frame_id=self.frame_id,
                 )
-                yield SourceFrame(payload, attachment, stamp)
                 index += 1
         finally:
             capture.release()
@@ -314,14 +311,12 @@ class ImageSequenceSource:
             if image is None:
                 msg = f"OpenCV cannot read the image {str(path)!r}"
                 raise ReplayError(msg)
-            stamp = epoch_ns + index * self._period
-            payload, attachment = _raw_frame(
-                np.asarray(image, dtype=np.uint8),
-                stamp_ns=stamp,
+            yield _raw_frame(
+                image,
+                stamp_ns=epoch_ns + index * self._period,
                 seq=seq_start + index,
                 frame_id=self.frame_id,
             )
-            yield SourceFrame(payload, attachment, stamp)
 
 
 # -- choosing --------------------------------------------------------------------------------
