@@ -263,7 +263,7 @@ class TrackingDetector:
         read: list[tuple[Rect, int, float]] = []
         for rect, scale, smallest in wanted:
             if any(inside(rect, r) and s <= scale and p <= smallest for r, s, p in read):
-                continue  # read already, as finely
+                continue  # read already, as finely and for markers as small
             read.append((rect, scale, smallest))
             x0, y0, x1, y1 = rect
             region = gray[y0:y1, x0:x1]
