@@ -137,9 +137,13 @@ def _publisher_seeing_subscriber(session: zenoh.Session, key_expr: str) -> zenoh
     """A publisher on `key_expr`, once the router has told it that a subscriber exists.
 
     This proves the router knows the subscriber, so a put that does not arrive was dropped by
-    the access control, not lost to declaration propagation.
+    the access control, not lost to declaration propagation. It blocks rather than drops when
+    its queue is full (Zenoh's default drops a large frame that cannot be queued within 1 ms,
+    as happens on a busy machine), so no put is lost on the way out either.
     """
-    publisher = session.declare_publisher(key_expr)
+    publisher = session.declare_publisher(
+        key_expr, congestion_control=zenoh.CongestionControl.BLOCK
+    )
     wait_for_subscriber(publisher, timeout=_DELIVERY_TIMEOUT)
     return publisher
 
