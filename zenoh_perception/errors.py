@@ -104,7 +104,20 @@ class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
 
 
+#: Zenoh's JSON5 parse error, as its Rust debug form prints it.
+_JSON5_ERROR = re.compile(
+    r'Json5Err\(Message \{ msg: "(?P<msg>(?:[^"\\]|\\.)*)", location: '
+    r"(?:Some\(Location \{ line: (?P<line>\d+), column: (?P<column>\d+) \}\)|None) \}\)"
+)
+
+
 def zenoh_error_text(err: Exception) -> str:
-    """A Zenoh error as one readable line (without the Rust source locations it carries)."""
+    """A Zenoh error as one readable line (without the Rust source locations it carries, and
+    a JSON5 syntax error as its message and position rather than Rust's debug dump)."""
     text = re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", str(err))
+    match = _JSON5_ERROR.search(text)
+    if match is not None:
+        detail = match["msg"].replace("\\n", "\n").rsplit("=", 1)[-1].strip()
+        where = f" at line {match['line']}, column {match['column']}" if match["line"] else ""
+        text = text.replace(match[0], f"not valid JSON5{where}: {detail}")
     return " ".join(text.split())

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -83,7 +85,9 @@ def test_listen_endpoints_are_repeatable() -> None:
 
 
 def test_a_cfg_value_that_is_not_json5_names_the_problem() -> None:
-    with pytest.raises(SettingsError, match="invalid Zenoh configuration"):
+    with pytest.raises(
+        SettingsError, match=r"--cfg scouting/delay: not valid JSON5 at line 1, column 1: expected"
+    ):
         zenoh_config_from_args(_parse("--cfg", "scouting/delay:{not json"))
 
 
@@ -102,3 +106,64 @@ def test_a_session_that_cannot_open_is_a_session_error_naming_the_endpoint() -> 
 def test_an_open_session_is_returned(endpoint: str) -> None:
     with open_zenoh(zenoh_config_from_args(_parse("-l", endpoint, "--no-multicast-scouting"))) as s:
         assert str(s.zid())
+
+
+@pytest.mark.parametrize("endpoint", ["127.0.0.1:7447", "tcp:127.0.0.1:7447", "carrier/x", "tcp/"])
+def test_an_endpoint_without_its_protocol_names_the_flag_and_the_right_form(
+    endpoint: str,
+) -> None:
+    for flag in ("-e", "-l"):
+        with pytest.raises(SettingsError, match=rf"{flag}/--\w+ .*PROTOCOL/ADDRESS") as info:
+            zenoh_config_from_args(_parse(flag, endpoint))
+        if endpoint == "127.0.0.1:7447":
+            assert "e.g. tcp/127.0.0.1:7447" in str(info.value)
+
+
+def test_client_mode_with_nowhere_to_connect_is_refused() -> None:
+    with pytest.raises(SettingsError, match=r"client mode .* nowhere to connect.* -e tcp/"):
+        zenoh_config_from_args(_parse("-m", "client", "--no-multicast-scouting"))
+    # an endpoint, or multicast scouting allowed, is somewhere to go
+    zenoh_config_from_args(_parse("-m", "client", "--no-multicast-scouting", "-e", "tcp/h:1"))
+    zenoh_config_from_args(_parse("-m", "client"))
+
+
+def test_client_mode_from_the_config_file_is_checked_too(tmp_path: Path) -> None:
+    path = tmp_path / "client.json5"
+    path.write_text('{ mode: "client", scouting: { multicast: { enabled: false } } }')
+    with pytest.raises(SettingsError, match="nowhere to connect"):
+        zenoh_config_from_args(_parse("-c", str(path)))
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda p: Path("/dev/zero"), "is not a regular file"),
+        (lambda p: p, "is not a regular file"),  # a directory
+        (lambda p: _write(p / "big.json5", b"{}" + b" " * (1 << 20)), "larger than 1048576"),
+        (lambda p: _write(p / "latin1.json5", b'{ id: "\xe9" }'), "not UTF-8"),
+        (lambda p: _write(p / "deep.json5", b"[" * 100_000), "nested 100000 levels"),
+        (lambda p: _write(p / "bad.json5", b"{ mode: "), "is invalid"),
+    ],
+)
+def test_a_config_file_is_checked_before_it_is_read_whole(
+    tmp_path: Path, make: Callable[[Path], Path], message: str
+) -> None:
+    with pytest.raises(SettingsError, match=rf"Zenoh configuration file \(-c\) .*{message}"):
+        zenoh_config_from_args(_parse("-c", str(make(tmp_path))))
+
+
+def test_a_config_file_that_is_a_fifo_does_not_hang(tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(SettingsError, match="not a regular file"):
+        zenoh_config_from_args(_parse("-c", str(fifo)))
+
+
+def test_a_deeply_nested_cfg_value_is_refused() -> None:
+    with pytest.raises(SettingsError, match=r"--cfg scouting/delay is nested"):
+        zenoh_config_from_args(_parse("--cfg", "scouting/delay:" + "[" * 10_000))
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path

@@ -182,6 +182,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from zenoh_perception.camera import replay  # noqa: PLC0415
     from zenoh_perception.camera.sources import open_source  # noqa: PLC0415
 
+    conf = zenoh_config_from_args(args)  # a flag mistake is reported before any file is read
     source = open_source(
         args.path,
         topic=args.topic,
@@ -189,7 +190,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         frame_id=args.frame_id,
     )
     options = replay.options_from_args(args, stderr_is_tty=sys.stderr.isatty())
-    return replay.main(zenoh_config_from_args(args), source, options, stop_on_signals())
+    return replay.main(conf, source, options, stop_on_signals())
 
 
 def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -10,10 +10,12 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Final
 
 import zenoh
 
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
+from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
 
 
 def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
@@ -69,30 +71,114 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+#: Link protocols of Zenoh's locators (``PROTOCOL/ADDRESS``).
+PROTOCOLS: Final = (
+    "tcp",
+    "udp",
+    "tls",
+    "quic",
+    "ws",
+    "unixsock-stream",
+    "unixpipe",
+    "serial",
+    "vsock",
+)
+#: Largest Zenoh configuration file read, bytes.
+MAX_CONFIG_FILE_BYTES: Final = MAX_TEXT_FILE_BYTES
+
+
+def check_endpoint(flag: str, endpoint: str) -> None:
+    """Refuse an endpoint that is not ``PROTOCOL/ADDRESS``, with the right form in the message.
+
+    Raises:
+        SettingsError: naming ``flag`` and showing the expected form.
+
+    """
+    protocol, sep, address = endpoint.partition("/")
+    if sep and protocol in PROTOCOLS and address and endpoint.isprintable():
+        return
+    example = f"tcp/{endpoint}" if not sep and ":" in endpoint else "tcp/192.168.1.2:7447"
+    msg = (
+        f"{flag} {endpoint!r}: an endpoint is PROTOCOL/ADDRESS with PROTOCOL one of "
+        f"{', '.join(PROTOCOLS)}, e.g. {example}"
+    )
+    raise SettingsError(msg)
+
+
+def _config_file(path: Path) -> zenoh.Config:
+    text = read_text_file(path, "Zenoh configuration file (-c)", MAX_CONFIG_FILE_BYTES)
+    check_nesting(text, f"Zenoh configuration file (-c) {path}")
+    try:
+        return zenoh.Config.from_json5(text)
+    except zenoh.ZError as err:
+        msg = f"Zenoh configuration file (-c) {path} is invalid: {zenoh_error_text(err)}"
+        raise SettingsError(msg) from err
+
+
+def _insert(conf: zenoh.Config, flag: str, path: str, value: str) -> None:
+    check_nesting(value, f"{flag} {path}")
+    try:
+        conf.insert_json5(path, value)
+    except zenoh.ZError as err:
+        msg = f"{flag} {path}: {zenoh_error_text(err)}"
+        raise SettingsError(msg) from err
+
+
 def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
     """A ``zenoh.Config`` from the flags added by :func:`add_zenoh_arguments`.
 
     Raises:
-        SettingsError: unreadable config file or a malformed ``--cfg``.
+        SettingsError: an unreadable or invalid config file (not a regular UTF-8 file of at
+            most 1 MiB, nested too deep, not Zenoh's JSON5), a malformed endpoint or ``--cfg``,
+            or client mode with nowhere to connect; each message names the flag.
 
     """
-    try:
-        conf = zenoh.Config.from_file(str(args.config)) if args.config else zenoh.Config()
-        if args.mode is not None:
-            conf.insert_json5("mode", json.dumps(args.mode))
-        if args.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-        if args.listen:
-            conf.insert_json5("listen/endpoints", json.dumps(args.listen))
-        if args.no_multicast_scouting:
-            conf.insert_json5("scouting/multicast/enabled", json.dumps(False))
-        for item in args.cfg:
-            key, sep, value = str(item).partition(":")
-            if not sep or not key:
-                msg = f"--cfg {item!r} is not KEY:VALUE"
-                raise SettingsError(msg)
-            conf.insert_json5(key, value)
-    except zenoh.ZError as err:
-        msg = f"invalid Zenoh configuration: {zenoh_error_text(err)}"
-        raise SettingsError(msg) from err
+    conf = _config_file(args.config) if args.config else zenoh.Config()
+    if args.mode is not None:
+        _insert(conf, "-m/--mode", "mode", json.dumps(args.mode))
+    for flag, name, endpoints in (
+        ("-e/--connect", "connect/endpoints", args.connect),
+        ("-l/--listen", "listen/endpoints", args.listen),
+    ):
+        for endpoint in endpoints:
+            check_endpoint(flag, str(endpoint))
+        if endpoints:
+            _insert(conf, flag, name, json.dumps(endpoints))
+    if args.no_multicast_scouting:
+        _insert(conf, "--no-multicast-scouting", "scouting/multicast/enabled", "false")
+    for item in args.cfg:
+        key, sep, value = str(item).partition(":")
+        if not sep or not key:
+            msg = f"--cfg {item!r} is not KEY:VALUE"
+            raise SettingsError(msg)
+        _insert(conf, "--cfg", key, value)
+    _check_client_can_connect(conf)
     return conf
+
+
+def _json(conf: zenoh.Config, path: str) -> object:
+    try:
+        return json.loads(conf.get_json(path))
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+def _check_client_can_connect(conf: zenoh.Config) -> None:
+    """A client that has no endpoint to connect to and may not scout would retry for ever.
+
+    Raises:
+        SettingsError: client mode, no connect endpoint, multicast scouting off.
+
+    """
+    if _json(conf, "mode") != "client":
+        return
+    endpoints = _json(conf, "connect/endpoints")
+    if isinstance(endpoints, dict):  # per-mode endpoints
+        endpoints = endpoints.get("client", [])
+    if endpoints or _json(conf, "scouting/multicast/enabled") is not False:
+        return
+    msg = (
+        "client mode with multicast scouting off has nowhere to connect: give the router's "
+        "endpoint with -e, e.g. -e tcp/127.0.0.1:7447"
+    )
+    raise SettingsError(msg)
