@@ -274,3 +274,22 @@ def test_bad_values_in_the_file_name_the_file_and_the_setting(tmp_path: Path) ->
     path.write_text("stats_interval_s = 0.01\n")
     with pytest.raises(SettingsError, match=r"bad_value\.toml: stats_interval_s must be in"):
         load_settings(path)
+
+
+def test_a_dictionary_is_kept_in_opencvs_spelling() -> None:
+    assert Settings(dictionary="dict_apriltag_36h11").dictionary == "DICT_APRILTAG_36h11"
+    assert settings_from_mapping({"dictionary": "dict_4x4_50"}).dictionary == "DICT_4X4_50"
+
+
+def test_an_unknown_setting_names_the_closest_one() -> None:
+    with pytest.raises(SettingsError, match=r"dictionnary \(did you mean dictionary\?\)"):
+        settings_from_mapping({"dictionnary": "DICT_4X4_50"})
+    with pytest.raises(SettingsError, match=r"unknown setting\(s\) zzz$"):
+        settings_from_mapping({"zzz": 1})
+
+
+def test_a_deeply_nested_settings_file_is_one_error(tmp_path: Path) -> None:
+    path = tmp_path / "deep.toml"
+    path.write_text("x = " + "[" * 100_000)
+    with pytest.raises(SettingsError, match=r"deep\.toml is nested 100000 levels deep"):
+        load_settings(path)

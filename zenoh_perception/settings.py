@@ -18,10 +18,10 @@ Validation (every failure is a :class:`SettingsError` naming the setting; the CL
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import os
 import re
-import stat
 import tomllib
 import typing
 from collections.abc import Mapping, Sequence
@@ -33,6 +33,7 @@ import zenoh
 
 from zenoh_perception.detect.types import DETECTORS, dictionary_name
 from zenoh_perception.errors import IntrinsicsError, SettingsError, zenoh_error_text
+from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
 from zenoh_perception.tags.geometry import (
     FOCAL_PX_MAX,
     FOCAL_PX_MIN,
@@ -44,7 +45,7 @@ from zenoh_perception.tags.selection import Metric, Policy
 METRICS = tuple(Metric)
 
 #: Largest settings file read, bytes.
-MAX_SETTINGS_FILE_BYTES: Final = 1 << 20
+MAX_SETTINGS_FILE_BYTES: Final = MAX_TEXT_FILE_BYTES
 #: Default largest frame payload: far below Zenoh's default message limit
 #: (transport/link/rx/max_message_size, 1 GiB), above any camera frame up to 4K BGRA.
 DEFAULT_MAX_FRAME_BYTES: Final = 64 << 20
@@ -155,6 +156,8 @@ class Settings:
 
     def __post_init__(self) -> None:
         _validate(self)
+        # the dictionary as OpenCV spells it, whatever case it was given in
+        object.__setattr__(self, "dictionary", dictionary_name(self.dictionary))
 
     def tag_size_for(self, tag_id: int) -> float:
         """Physical size of ``tag_id`` in metres (0.0 when unknown)."""
@@ -417,7 +420,13 @@ def settings_from_mapping(
     known = {f.name: f for f in fields(Settings)}
     unknown = sorted(set(values) - set(known))
     if unknown:
-        msg = f"{source}: unknown setting(s) {', '.join(unknown)}"
+        hints = [
+            f"{name} (did you mean {close[0]}?)"
+            if (close := difflib.get_close_matches(name, known, n=1))
+            else name
+            for name in unknown
+        ]
+        msg = f"{source}: unknown setting(s) {', '.join(hints)}"
         raise SettingsError(msg)
     try:
         coerced = {name: _coerce(known[name], value) for name, value in values.items()}
@@ -428,39 +437,10 @@ def settings_from_mapping(
 
 
 def _read_settings_file(path: Path) -> dict[str, Any]:
-    """The TOML table of ``path``: a regular file of at most MAX_SETTINGS_FILE_BYTES, UTF-8.
-
-    Opened without blocking (a FIFO must not hang start-up) and checked on the open file, so
-    the file read is the file checked.
-    """
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as err:
-        msg = f"cannot read settings file {path}: {err.strerror or err}"
-        raise SettingsError(msg) from err
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            msg = f"settings file {path} is not a regular file"
-            raise SettingsError(msg)
-        data = b""
-        while len(data) <= MAX_SETTINGS_FILE_BYTES:
-            chunk = os.read(fd, MAX_SETTINGS_FILE_BYTES + 1 - len(data))
-            if not chunk:
-                break
-            data += chunk
-    except OSError as err:
-        msg = f"cannot read settings file {path}: {err.strerror or err}"
-        raise SettingsError(msg) from err
-    finally:
-        os.close(fd)
-    if len(data) > MAX_SETTINGS_FILE_BYTES:
-        msg = f"settings file {path} is larger than {MAX_SETTINGS_FILE_BYTES} bytes"
-        raise SettingsError(msg)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as err:
-        msg = f"settings file {path} is not UTF-8 text: {err}"
-        raise SettingsError(msg) from err
+    """The TOML table of ``path``: a regular UTF-8 file of at most MAX_SETTINGS_FILE_BYTES,
+    nested at most MAX_NESTING levels (tomllib recurses per level)."""
+    text = read_text_file(path, "settings file", MAX_SETTINGS_FILE_BYTES)
+    check_nesting(text, f"settings file {path}")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
