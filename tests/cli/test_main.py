@@ -27,7 +27,11 @@ def test_a_mistyped_flag_names_the_closest_one(
     with pytest.raises(SystemExit) as exit_info:
         cli.main(argv)
     assert exit_info.value.code == 2
-    assert hint in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert hint in err
+    # the usage shown is the subcommand's, not the top-level one
+    assert err.startswith(f"usage: zenoh-perception {argv[0]} ")
+    assert f"zenoh-perception {argv[0]}: error: unrecognized arguments" in err
 
 
 @pytest.fixture(autouse=True)

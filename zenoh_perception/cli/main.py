@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import os
 import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
@@ -19,7 +20,20 @@ Handler = Callable[[argparse.Namespace], int]
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that names the closest flag (of any subcommand) when one is mistyped."""
+    """argparse that names the closest flag when one is mistyped, and shows the usage of the
+    subcommand the flag was given to."""
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            # argparse hands a subcommand's unknown flags up to the top-level parser, which
+            # would print its own usage: the subcommand's is the one that helps
+            command = getattr(parsed, "command", None)
+            target = _subcommands(self).get(command, self) if command else self
+            target.error(f"unrecognized arguments: {' '.join(extras)}")
+        return parsed
 
     def error(self, message: str) -> NoReturn:
         prefix = "unrecognized arguments: "
@@ -34,6 +48,13 @@ class Parser(argparse.ArgumentParser):
             if hints:
                 message = f"{message} ({'; '.join(hints)})"
         super().error(message)
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:  # argparse offers no public view of them
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
 
 
 def _option_strings(parser: argparse.ArgumentParser) -> set[str]:
@@ -59,9 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("DEBUG", "INFO", "WARNING", "ERROR"),
         help="log level (default INFO); Zenoh's own log follows RUST_LOG",
     )
-    # a mistyped flag of a subcommand is reported by this top-level parser
-    sub = parser.add_subparsers(
-        dest="command", required=True, metavar="COMMAND", parser_class=argparse.ArgumentParser
+    sub: argparse._SubParsersAction[argparse.ArgumentParser] = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=Parser
     )
     for add in COMMANDS:
         add(sub)
@@ -71,6 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging(args.log_level)
+    if not sys.stderr.isatty():
+        # Zenoh's log (Rust's tracing) colours its lines unless NO_COLOR is set: a log file
+        # or a journal would get raw ANSI codes.
+        os.environ.setdefault("NO_COLOR", "1")
     zenoh.init_log_from_env_or("error")
     handler: Handler = args.handler
     try:
