@@ -464,6 +464,13 @@ class PerceptionService:
         while not self._stop.wait(interval):
             status = self.status()
             frames = status["frames"]
+            if frames["received"] == 0:
+                # a line of zeros says nothing: say what is awaited, and where
+                log.info(
+                    "event=waiting_for_frames %s",
+                    kv(key=self.settings.input_key, detail="no frame received yet"),
+                )
+                continue
             latency = status["latency_ms"]
             budget = status["budget"]
             log.info(
