@@ -74,6 +74,21 @@ def test_every_tag_is_observed_and_the_closest_selected() -> None:
     assert analysis.convert_ms >= 0.0 and analysis.detect_ms >= 0.0
 
 
+def test_each_tag_names_its_dictionary_and_several_are_read_at_once() -> None:
+    assert {t.dictionary for t in Pipeline(Settings()).process(_frame(TWO_TAGS)).tags} == {
+        "DICT_4X4_50"
+    }
+    meta = RawFrameMeta(640, 480)
+    apriltag = render_markers(
+        640, 480, [(23, _square(400, 300, 120))], dictionary="DICT_APRILTAG_16h5"
+    )
+    both = np.minimum(render_markers(640, 480, TWO_TAGS[:1]), apriltag)
+    frame = decode_raw_frame(both.tobytes(), meta.to_msgpack())
+    pipeline = Pipeline(Settings(dictionary="DICT_APRILTAG_16h5, DICT_4X4_50"))
+    found = sorted((t.tag_id, t.dictionary) for t in pipeline.process(frame).tags)
+    assert found == [(7, "DICT_4X4_50"), (23, "DICT_APRILTAG_16h5")]
+
+
 def test_the_center_policy_selects_the_tag_on_the_centre() -> None:
     analysis = Pipeline(Settings(policy="center")).process(_frame(TWO_TAGS))
     assert analysis.selected.tag_id == 3

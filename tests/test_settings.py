@@ -293,3 +293,10 @@ def test_a_deeply_nested_settings_file_is_one_error(tmp_path: Path) -> None:
     path.write_text("x = " + "[" * 100_000)
     with pytest.raises(SettingsError, match=r"deep\.toml is nested 100000 levels deep"):
         load_settings(path)
+
+
+def test_several_dictionaries_are_one_setting_in_opencvs_spelling() -> None:
+    settings = settings_from_mapping({"dictionary": "dict_4x4_50,DICT_APRILTAG_16h5, DICT_4X4_50"})
+    assert settings.dictionary == "DICT_4X4_50, DICT_APRILTAG_16h5"
+    with pytest.raises(SettingsError, match="unknown ArUco dictionary"):
+        settings_from_mapping({"dictionary": "DICT_4X4_50,"})

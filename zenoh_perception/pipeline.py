@@ -58,7 +58,9 @@ def observe(
     size = settings.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:
-        return TagObservation(detection.tag_id, x, y, closeness, corners, area)
+        return TagObservation(
+            detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
+        )
     metric = Metric.AREA
     if settings.metric == Metric.DISTANCE:
         closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
@@ -74,6 +76,7 @@ def observe(
         pose.rvec,
         pose.tvec,
         metric,
+        detection.dictionary,
     )
 
 

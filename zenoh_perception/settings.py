@@ -31,7 +31,7 @@ from typing import Any, Final
 
 import zenoh
 
-from zenoh_perception.detect.types import DETECTORS, dictionary_name
+from zenoh_perception.detect.types import DETECTORS, dictionary_names
 from zenoh_perception.errors import IntrinsicsError, SettingsError, zenoh_error_text
 from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
 from zenoh_perception.tags.geometry import (
@@ -94,7 +94,10 @@ class Settings:
         default="mrover", metadata=_doc("ROS package of StarterProjectTag (type name only)")
     )
     # Detection
-    dictionary: str = field(default="DICT_4X4_50", metadata=_doc("predefined ArUco dictionary"))
+    dictionary: str = field(
+        default="DICT_4X4_50",
+        metadata=_doc("predefined ArUco dictionary, or several separated by commas"),
+    )
     detector: str = field(
         default="opencv",
         metadata=_doc("'opencv' (OpenCV's detector, every frame) or 'tracking' (experimental)"),
@@ -156,8 +159,8 @@ class Settings:
 
     def __post_init__(self) -> None:
         _validate(self)
-        # the dictionary as OpenCV spells it, whatever case it was given in
-        object.__setattr__(self, "dictionary", dictionary_name(self.dictionary))
+        # the dictionaries as OpenCV spells them, whatever case they were given in
+        object.__setattr__(self, "dictionary", ", ".join(dictionary_names(self.dictionary)))
 
     def tag_size_for(self, tag_id: int) -> float:
         """Physical size of ``tag_id`` in metres (0.0 when unknown)."""
@@ -344,7 +347,7 @@ def _validate(settings: Settings) -> None:
     if settings.detector not in DETECTORS:
         msg = f"detector must be one of {', '.join(DETECTORS)}, not {settings.detector!r}"
         raise SettingsError(msg)
-    dictionary_name(settings.dictionary)
+    dictionary_names(settings.dictionary)
     _validate_numbers(settings)
     _validate_intrinsics(settings)
     if (

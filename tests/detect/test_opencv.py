@@ -131,3 +131,29 @@ def test_single_threaded_restores_opencv_s_thread_count() -> None:
     with pytest.raises(RuntimeError), single_threaded():
         raise RuntimeError
     assert cv2.getNumThreads() == before
+
+
+def _two_families() -> npt.NDArray[np.uint8]:
+    left = render_markers(W, H, [(7, _square(60, 60, 150))])
+    right = render_markers(W, H, [(23, _square(380, 200, 150))], dictionary="DICT_APRILTAG_16h5")
+    return np.minimum(_gray(left), _gray(right))
+
+
+def test_several_dictionaries_are_read_in_one_pass_each_detection_naming_its_own() -> None:
+    image = _two_families()
+    both = OpenCvDetector("dict_4x4_50, DICT_APRILTAG_16h5")
+    assert both.dictionaries == ("DICT_4X4_50", "DICT_APRILTAG_16h5")
+    found = sorted((d.tag_id, d.dictionary) for d in both.detect(image))
+    assert found == [(7, "DICT_4X4_50"), (23, "DICT_APRILTAG_16h5")]
+    # one dictionary reads its own marker only, and names it too
+    (only,) = OpenCvDetector("DICT_APRILTAG_16h5").detect(image)
+    assert (only.tag_id, only.dictionary) == (23, "DICT_APRILTAG_16h5")
+    # regions read every dictionary as well, at full and reduced scale
+    for scale in (1, 2):
+        region = both.detect_region(image[150:400, 330:580], (330, 150), scale=scale)
+        assert [(d.tag_id, d.dictionary) for d in region] == [(23, "DICT_APRILTAG_16h5")]
+
+
+def test_a_dictionary_list_with_an_unknown_name_is_a_settings_error() -> None:
+    with pytest.raises(SettingsError, match="DICT_9X9"):
+        OpenCvDetector("DICT_4X4_50, DICT_9X9")

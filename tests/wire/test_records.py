@@ -106,6 +106,16 @@ def test_each_tag_of_the_record_says_which_metric_its_closeness_used() -> None:
         jsonschema.validate(record, schema)
 
 
+def test_each_tag_of_the_record_names_its_dictionary_when_known() -> None:
+    named = TagObservation(
+        23, 50.0, 50.0, 0.9, AREA_TAG.corners, 400.0, dictionary="DICT_APRILTAG_16h5"
+    )
+    record = decode_record(_record((named, AREA_TAG)).to_msgpack())
+    jsonschema.validate(record, _schema("perception-tags.schema.json"))
+    assert record["tags"][0]["dictionary"] == "DICT_APRILTAG_16h5"
+    assert "dictionary" not in record["tags"][1]
+
+
 def test_record_selected_equals_the_tag_message_bit_for_bit() -> None:
     codec = TagCodec()
     record = decode_record(_record((TAG,)).to_msgpack())

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.types import Detection, dictionary_name
+from zenoh_perception.detect.types import Detection, dictionary_name, dictionary_names
 
 
 def aruco_dictionary(name: str) -> Any:
@@ -42,34 +42,59 @@ def single_threaded() -> Iterator[None]:
 
 
 def detections_from_opencv(
-    corners: Any, ids: Any, offset: tuple[int, int] = (0, 0)
+    corners: Any,
+    ids: Any,
+    offset: tuple[int, int] = (0, 0),
+    dictionaries: tuple[str, ...] = ("",),
+    indices: Any = None,
 ) -> list[Detection]:
     """``detectMarkers`` output as :class:`Detection` objects, shifted by ``offset`` (x, y):
-    the top-left pixel of the region the detector ran on."""
+    the top-left pixel of the region the detector ran on. Each is named after its entry of
+    ``dictionaries``: the first, or the one ``indices`` (``detectMarkersMultiDict``'s) gives."""
     if ids is None or len(ids) == 0:
         return []
     shift = np.asarray(offset, dtype=np.float32)
+    flat = np.asarray(ids).reshape(-1)
+    which = np.zeros(len(flat), int) if indices is None else np.asarray(indices).reshape(-1)
     return [
-        Detection(int(tag_id), np.asarray(quad, dtype=np.float32).reshape(4, 2) + shift)
-        for tag_id, quad in zip(np.asarray(ids).reshape(-1), corners, strict=True)
+        Detection(
+            int(tag_id),
+            np.asarray(quad, dtype=np.float32).reshape(4, 2) + shift,
+            dictionaries[int(index)],
+        )
+        for tag_id, quad, index in zip(flat, corners, which, strict=True)
     ]
 
 
 class OpenCvDetector:
-    """OpenCV's ArUco detector, with OpenCV's default parameters."""
+    """OpenCV's ArUco detector, with OpenCV's default parameters.
+
+    ``dictionary`` is one dictionary or several separated by commas; several are read in one
+    call (``detectMarkersMultiDict``: the candidate search is shared, each candidate's bits
+    are matched against every dictionary) and each detection names its dictionary.
+    """
 
     def __init__(self, dictionary: str = "DICT_4X4_50") -> None:
         params = cv2.aruco.DetectorParameters()
         self._params = params
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
-        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), params)
+        self.dictionaries = dictionary_names(dictionary)
+        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(self.dictionaries[0]), params)
+        if len(self.dictionaries) > 1:
+            self._detector.setDictionaries([aruco_dictionary(d) for d in self.dictionaries])
+
+    def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
+        if len(self.dictionaries) == 1:
+            corners, ids, _rejected = self._detector.detectMarkers(image)
+            return detections_from_opencv(corners, ids, offset, self.dictionaries)
+        corners, ids, _rejected, indices = self._detector.detectMarkersMultiDict(image)
+        return detections_from_opencv(corners, ids, offset, self.dictionaries, indices)
 
     def detect(self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0) -> list[Detection]:
         """Markers in the whole image; with ``min_perimeter_px``, none whose perimeter is
         shorter than that many pixels (never smaller than the configured rate allows)."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
-        corners, ids, _rejected = self._detector.detectMarkers(gray)
-        return detections_from_opencv(corners, ids)
+        return self._detect(gray, (0, 0))
 
     def detect_region(
         self,
@@ -101,10 +126,9 @@ class OpenCvDetector:
             small = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
         floor = max(self._min_perimeter_rate * frame_side, min_perimeter_px) / scale
         self._set_min_perimeter(max(small.shape[:2]), floor)
-        corners, ids, _rejected = self._detector.detectMarkers(small)
         if scale == 1:
-            return detections_from_opencv(corners, ids, offset)
-        found = detections_from_opencv(corners, ids)
+            return self._detect(small, offset)
+        found = self._detect(small, (0, 0))
         if not found:
             return []
         # back to full resolution, then OpenCV's sub-pixel corner refinement there
@@ -114,7 +138,9 @@ class OpenCvDetector:
         window = (scale + 1, scale + 1)
         cv2.cornerSubPix(grey, quads, window, (-1, -1), _SUBPIX_CRITERIA)
         quads += np.asarray(offset, dtype=np.float32)
-        return [Detection(d.tag_id, quads[4 * i : 4 * i + 4]) for i, d in enumerate(found)]
+        return [
+            Detection(d.tag_id, quads[4 * i : 4 * i + 4], d.dictionary) for i, d in enumerate(found)
+        ]
 
     def _set_min_perimeter(self, image_side: int, floor_px: float) -> None:
         """``minMarkerPerimeterRate`` for an image whose larger side is ``image_side``: the

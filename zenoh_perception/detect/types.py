@@ -55,15 +55,33 @@ def dictionary_name(name: str) -> str:
     raise SettingsError(msg)
 
 
+def dictionary_names(names: str) -> tuple[str, ...]:
+    """The dictionaries of a ``dictionary`` setting: one name, or several separated by commas
+    (``"DICT_4X4_50, DICT_APRILTAG_16h5"``), each in its canonical spelling, without repeats.
+
+    Raises:
+        SettingsError: an unknown name, or none at all.
+
+    """
+    found: list[str] = []
+    for part in names.split(","):
+        name = dictionary_name(part.strip())
+        if name not in found:
+            found.append(name)
+    return tuple(found)
+
+
 @dataclass(frozen=True, slots=True)
 class Detection:
-    """One decoded marker: id and its four corners (float32, shape (4, 2)).
+    """One decoded marker: id, its four corners (float32, shape (4, 2)) and the dictionary it
+    was decoded in ("" where the detector does not say).
 
     Corner order is OpenCV's: top-left, top-right, bottom-right, bottom-left of the marker.
     """
 
     tag_id: int
     corners: npt.NDArray[np.float32]
+    dictionary: str = ""
 
 
 class Detector(Protocol):

@@ -65,6 +65,7 @@ class TagObservation:
     rvec: tuple[float, float, float] | None = field(default=None)
     tvec: tuple[float, float, float] | None = field(default=None)
     metric: Metric = Metric.AREA  # what ``closeness`` was computed from
+    dictionary: str = ""  # the dictionary the id was decoded in ("" when not known)
 
     def message(self) -> TagMessage:
         return TagMessage(self.tag_id, self.x, self.y, self.closeness)

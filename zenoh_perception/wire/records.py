@@ -83,6 +83,8 @@ def tag_entry(tag: TagObservation) -> dict[str, Any]:
     entry: dict[str, Any] = message_fields(tag.message())
     entry["corners"] = [[float(x), float(y)] for x, y in tag.corners]
     entry["metric"] = str(tag.metric)
+    if tag.dictionary:
+        entry["dictionary"] = tag.dictionary
     if tag.distance_m is not None:
         entry["distance_m"] = float(tag.distance_m)
     if tag.rvec is not None and tag.tvec is not None:
