@@ -156,6 +156,9 @@ class Settings:
     log_interval_s: float = field(
         default=5.0, metadata=_doc("at most one line per repeating event (and reason) per interval")
     )
+    no_tag_hint_s: float = field(
+        default=30.0, metadata=_doc("hint once when no frame had a tag for this long; 0 = off")
+    )
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -227,6 +230,7 @@ BOUNDS: Final[Mapping[str, Bound]] = {
     "debug_jpeg_quality": Bound(1, 100),
     "stats_interval_s": Bound(0.1, 86_400, zero="off"),
     "log_interval_s": Bound(0.1, 86_400),
+    "no_tag_hint_s": Bound(1, 86_400, zero="off"),
 }
 #: Sizes in ``tag_sizes``, metres.
 TAG_SIZE_BOUND: Final = Bound(0.001, 100)

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import os
 import subprocess
+import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -107,3 +109,46 @@ def test_run_says_what_it_waits_for_until_the_first_frame(endpoint: str) -> None
         stats = parse_pairs(lines.wait_for("event=stats"))
         assert int(stats["received"]) >= 1
         publisher.undeclare()
+
+
+def test_run_hints_once_at_the_dictionary_when_no_frame_has_a_tag(endpoint: str) -> None:
+    with (
+        open_session(listen=[endpoint]) as camera,
+        running_cli(
+            "run",
+            "-e",
+            endpoint,
+            "--no-multicast-scouting",
+            "--no-tag-hint-s",
+            "1",
+            "--dictionary",
+            "DICT_APRILTAG_16h5",
+        ) as proc,
+    ):
+        lines = OutputLines(proc)
+        lines.wait_for("event=started")
+        publisher = camera.declare_publisher(
+            "zed/left/image", congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        wait_for_subscriber(publisher)
+        # a 4X4 tag in view, which a 16h5 service cannot read
+        image = render_markers(
+            640, 480, [(3, np.array([[100, 100], [300, 100], [300, 300], [100, 300]]))]
+        )
+        meta = RawFrameMeta(640, 480).to_msgpack()
+        stop = threading.Event()
+
+        def camera_loop() -> None:
+            while not stop.wait(0.05):
+                publisher.put(image.tobytes(), attachment=meta)
+
+        thread = threading.Thread(target=camera_loop, daemon=True)
+        thread.start()
+        try:
+            hint = parse_pairs(lines.wait_for("event=no_tag_hint"))
+        finally:
+            stop.set()
+            thread.join(timeout=5)
+            publisher.undeclare()
+    assert hint["dictionary"] == "DICT_APRILTAG_16h5"
+    assert "zenoh-perception probe" in hint["detail"]

@@ -178,6 +178,15 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
+def _frame_count(text: str) -> int:
+    """A frame count from 1 to 100,000."""
+    value = _non_negative_int(text)
+    if not 1 <= value <= 100_000:
+        msg = f"{text!r} is not from 1 to 100000"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from zenoh_perception.camera import replay  # noqa: PLC0415
     from zenoh_perception.camera.sources import open_source  # noqa: PLC0415
@@ -291,6 +300,39 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return generated.main(args)
 
 
+def _cmd_probe(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import probe  # noqa: PLC0415
+
+    return probe.main(args.paths, max_frames=args.max_frames, topic=args.topic, as_json=args.json)
+
+
+def _add_probe(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "probe",
+        help="which dictionary are these markers? (photos, videos, image folders, bags)",
+        description="Read the pictures with every OpenCV dictionary family, as they are and "
+        "mirrored, and print per file the families and ids found, how often and how large, and "
+        "the run flag to use. Exit code 1 when nothing was found in some file.",
+    )
+    parser.add_argument(
+        "paths",
+        type=Path,
+        nargs="+",
+        metavar="PATH",
+        help="photo, video, folder of images, rosbag2 folder or .mcap/.db3 file",
+    )
+    parser.add_argument(
+        "--max-frames",
+        type=_frame_count,
+        default=300,
+        metavar="N",
+        help="frames read per file at most, spread over a longer one (default 300)",
+    )
+    parser.add_argument("--topic", default=None, help="bag topic (default: its Image topic)")
+    parser.add_argument("--json", action="store_true", help="one JSON object per file")
+    parser.set_defaults(handler=_cmd_probe)
+
+
 def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``bench`` subcommand."""
     parser = sub.add_parser(
@@ -355,5 +397,6 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], 
     _add_echo,
     _add_status,
     _add_replay,
+    _add_probe,
     _add_bench,
 )

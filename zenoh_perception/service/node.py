@@ -105,6 +105,7 @@ class PerceptionService:
         self._last_debug = 0.0
         self._debug_images = 0
         self._seq = 0
+        self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._declared: list[Any] = []
         self._threads: list[threading.Thread] = []
         self._started = False
@@ -363,11 +364,33 @@ class PerceptionService:
             frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
             detect_ms=analysis.detect_ms,
         )
+        self._hint_if_tagless(bool(analysis.tags))
         if self._debug_watched.is_set():
             try:
                 self._publish_debug(frame, analysis, record.stamp_ns)
             except ProcessingError as err:
                 self._processing_failed(err)
+
+    def _hint_if_tagless(self, tagged: bool) -> None:
+        """Once ``no_tag_hint_s`` of frames all had no tag, say what to check (once, until a
+        tag is seen again)."""
+        now = time.monotonic()
+        if tagged or self.settings.no_tag_hint_s <= 0:
+            self._tagless_since = None
+            return
+        if self._tagless_since is None:
+            self._tagless_since = now
+        elif now - self._tagless_since >= self.settings.no_tag_hint_s:
+            self._tagless_since = math.inf  # said: quiet until a tag is seen again
+            log.info(
+                "event=no_tag_hint %s",
+                kv(
+                    seconds=self.settings.no_tag_hint_s,
+                    dictionary=self.settings.dictionary,
+                    detail="no tag in any frame: if tags are in view, run `zenoh-perception "
+                    "probe` on a recording of this camera to find their dictionary",
+                ),
+            )
 
     def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
         """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
