@@ -13,7 +13,14 @@ import pytest
 
 from tests.helpers import Collector, loopback_config, open_session, parse_pairs, wait_until
 from zenoh_perception.camera import demo
-from zenoh_perception.camera.demo import agreement, check_frame_bytes, publish_camera
+from zenoh_perception.camera.demo import (
+    MIN_READABLE_SIDE_PX,
+    Summary,
+    agreement,
+    check_frame_bytes,
+    format_agreement,
+    publish_camera,
+)
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
 from zenoh_perception.settings import Settings
@@ -29,26 +36,48 @@ def _tag(tag_id: int, x: float, y: float) -> dict[str, Any]:
     }
 
 
-def test_agreement_lists_found_missed_and_false_ids() -> None:
+def test_agreement_lists_read_not_read_and_false_ids() -> None:
     scene = SceneGenerator(
         CameraModel.named("VGA"), seed=1, effects=Effects.clean()
     ).scene_from_poses([MarkerPose(3, 0.2, (-0.3, 0.0, 1.5)), MarkerPose(9, 0.2, (0.3, 0.0, 1.5))])
     three = scene.markers[0].corner_mean
     record = {"tags": [_tag(3, three[0] + 0.25, three[1]), _tag(7, 10.0, 10.0)]}
-    line = agreement(record, scene.markers)
-    assert "2 visible" in line
-    assert f"found 3@({three[0] + 0.25:.1f},{three[1]:.1f}) c=0.900" in line
-    assert "centre error <= 0.25 px" in line
-    assert "missed [9]" in line
-    assert "false ids [7]" in line
+    result = agreement(record, scene.markers)
+    assert result.in_view == 2
+    assert [(tag_id, round(error, 2)) for tag_id, error in result.read] == [(3, 0.25)]
+    assert result.not_read == ((9, "other"),)
+    assert result.false_ids == (7,) and result.on_lookalikes == ()
+    line = format_agreement(result, scene.markers)
+    assert line.startswith("  truth: 2 tags in view; read 3 (0.25 px off); not read 9 (")
+    assert "not read (blur, angle or light)" in line
+    assert line.endswith("reported where no such tag is: [7]")
 
 
-def test_agreement_of_an_empty_answer() -> None:
-    scene = SceneGenerator(
-        CameraModel.named("VGA"), seed=2, effects=Effects.clean()
-    ).scene_from_poses([MarkerPose(5, 0.2, (0.0, 0.0, 1.5))])
-    line = agreement({"tags": []}, scene.markers)
-    assert "found -" in line and "missed [5]" in line and "false ids -" in line
+def test_a_tag_not_read_says_why() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=2, effects=Effects.clean())
+    far = generator.scene_from_poses([MarkerPose(5, 0.1, (0.0, 0.0, 9.0))])
+    (marker,) = far.markers
+    assert marker.visible and marker.side_px < MIN_READABLE_SIDE_PX
+    result = agreement({"tags": []}, far.markers)
+    assert result.read == () and result.not_read == ((5, "too far"),)
+    line = format_agreement(result, far.markers)
+    assert "read none" in line and "too far: under 10 px a side" in line and "no false id" in line
+
+
+def test_a_false_id_on_a_look_alike_is_named_and_the_summary_adds_up() -> None:
+    generator = SceneGenerator(CameraModel.named("VGA"), seed=3, effects=Effects.clean())
+    scene = next(iter(generator.drive(1, n_tags=1, n_distractors=2)))
+    code = next(d for d in scene.distractors if d.mimic_id is not None)
+    x, y = code.corners.mean(axis=0)
+    result = agreement({"tags": [_tag(int(code.mimic_id or 0), x, y)]}, [], scene.distractors)
+    assert result.false_ids == result.on_lookalikes == (code.mimic_id,)
+    assert "(1 on the scene's look-alikes)" in format_agreement(result, [])
+    summary = Summary()
+    summary.add(result)
+    summary.add(agreement({"tags": []}, scene.markers))
+    text = summary.format(sent=3)
+    assert text.startswith("demo: 2 of 3 frames answered")
+    assert "1 false ids (1 on the scene's look-alikes" in text
 
 
 def _answers(printed: io.StringIO) -> list[tuple[dict[str, str], str]]:
@@ -62,8 +91,8 @@ def _answers(printed: io.StringIO) -> list[tuple[dict[str, str], str]]:
 
 
 def _found_ids(truth: str) -> list[int]:
-    found = truth.split("; found ", 1)[1].split(";", 1)[0]
-    return [int(tag_id) for tag_id in re.findall(r"(\d+)@\(", found)]
+    found = truth.split("; read ", 1)[1].split(";", 1)[0]
+    return [int(tag_id) for tag_id in re.findall(r"(\d+) \(", found)]
 
 
 def test_demo_answers_its_frames_and_compares_each_answer_with_the_truth() -> None:
@@ -97,6 +126,8 @@ def test_demo_answers_its_frames_and_compares_each_answer_with_the_truth() -> No
     with_tag = [(fields, truth) for fields, truth in answers if fields["selected"] != "-1"]
     # the selected tag is a real one of that frame: found where the truth puts it
     assert any(int(fields["selected"]) in _found_ids(truth) for fields, truth in with_tag)
+    # and the run ends with its summary
+    assert printed.getvalue().splitlines()[-1].startswith("demo: ")
 
 
 def test_camera_publishes_numbered_raw_frames_of_the_scenes(endpoint: str) -> None:

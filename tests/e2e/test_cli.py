@@ -213,7 +213,9 @@ def test_demo_runs_camera_service_and_echo_in_one_command() -> None:
     assert {int(a["seq"]) for a in answers} <= set(range(12))
     truth = [line for line in lines if line.startswith("  truth:")]
     assert len(truth) == len(answers)  # every answer compared with the frame's truth
-    assert all(" visible; found " in line and "; false ids " in line for line in truth)
+    assert all(" tags in view; read " in line and "; not read " in line for line in truth)
+    summary = lines[-1]
+    assert summary.startswith(f"demo: {len(answers)} of 12 frames answered"), summary
 
 
 def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:

@@ -18,7 +18,9 @@ import itertools
 import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any, Final, TextIO
 
 import numpy as np
@@ -27,7 +29,13 @@ import zenoh
 from zenoh_perception.camera.shm import ShmPutter
 from zenoh_perception.errors import PayloadTooLargeError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
-from zenoh_perception.scene import CameraModel, MarkerTruth, Scene, SceneGenerator
+from zenoh_perception.scene import (
+    CameraModel,
+    DistractorTruth,
+    MarkerTruth,
+    Scene,
+    SceneGenerator,
+)
 from zenoh_perception.service.node import PerceptionService, check_transport_limit
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
@@ -36,6 +44,8 @@ from zenoh_perception.wire.records import decode_record
 from zenoh_perception.wire.text import format_decoded_record
 
 DRIVE_SECONDS = 12.0
+#: Edge lengths of the demo's tags, metres (drawn per tag).
+DEMO_TAG_SIZE_M: Final = (0.3, 0.45)
 
 
 #: Frames whose truth is kept while their record is on its way (dropped frames never answer).
@@ -47,7 +57,10 @@ def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -
     camera = CameraModel.named(resolution)
     generator = SceneGenerator(camera, dictionary=dictionary, seed=seed)
     for _ in itertools.count():
-        yield from generator.drive(round(DRIVE_SECONDS * fps), fps=fps, speed_mps=0.6)
+        # tags large enough to be read from most of the drive; the far ones are said to be
+        yield from generator.drive(
+            round(DRIVE_SECONDS * fps), fps=fps, speed_mps=0.6, size_m=DEMO_TAG_SIZE_M
+        )
 
 
 def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:
@@ -67,35 +80,134 @@ def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:
         raise SettingsError(msg) from err
 
 
-def agreement(record: dict[str, Any], markers: Sequence[MarkerTruth]) -> str:
-    """How the record's tags compare with the truth of the frame it answers: tags found, with
-    their centre (x, y) and closeness, the largest centre error against the rendered truth
-    (px), the visible tags missed and the ids reported where no such tag is."""
-    visible = [m for m in markers if m.visible]
-    found: list[str] = []
-    errors: list[float] = []
+#: Mean side (px) under which a tag is too small for OpenCV's default detector to read: its
+#: 4x4 cells plus border are then under about 1.5 px each.
+MIN_READABLE_SIDE_PX: Final = 10.0
+
+
+@dataclass(frozen=True, slots=True)
+class Agreement:
+    """How one record compares with the truth of the frame it answers."""
+
+    in_view: int  # tags whose four corners are inside the frame
+    read: tuple[tuple[int, float], ...]  # (id, centre error in px) of each tag found
+    not_read: tuple[tuple[int, str], ...]  # (id, why) of each tag in view that was not found
+    false_ids: tuple[int, ...]  # ids reported where no such tag is
+    on_lookalikes: tuple[int, ...] = ()  # those of them read on the scene's look-alikes
+
+    @staticmethod
+    def why_not_read(marker: MarkerTruth) -> str:
+        if marker.occluded:
+            return "hidden"
+        if marker.side_px < MIN_READABLE_SIDE_PX:
+            return "too far"
+        return "other"
+
+
+def _near(truth: MarkerTruth | DistractorTruth, x: float, y: float) -> float | None:
+    """Distance from (x, y) to ``truth``'s corner mean, when within 3 px or 30 % of its side."""
+    distance = float(np.hypot(*(truth.corners.mean(axis=0) - (x, y))))
+    return distance if distance <= max(3.0, 0.3 * truth.side_px) else None
+
+
+def agreement(
+    record: dict[str, Any],
+    markers: Sequence[MarkerTruth],
+    distractors: Sequence[DistractorTruth] = (),
+) -> Agreement:
+    """Match the record's tags with the rendered truth: a tag is read when a tag of its id
+    lies within 3 px (or 30 % of its side) of where the record puts it; a false id is on a
+    look-alike when one carrying that id's code lies there."""
+    read: list[tuple[int, float]] = []
     false_ids: list[int] = []
+    lookalikes: list[int] = []
     matched: set[int] = set()
     for tag in record["tags"]:
+        tag_id = int(tag["tag_id"])
         x, y = float(tag["x_tag_center_pixel"]), float(tag["y_tag_center_pixel"])
         hits = [
-            (float(np.hypot(*(m.corner_mean - (x, y)))), i)
+            (distance, i)
             for i, m in enumerate(markers)
-            if m.tag_id == tag["tag_id"] and i not in matched
+            if m.tag_id == tag_id and i not in matched and (distance := _near(m, x, y)) is not None
         ]
-        if not hits or min(hits)[0] > max(3.0, 0.3 * markers[min(hits)[1]].side_px):
-            false_ids.append(int(tag["tag_id"]))
+        if not hits:
+            false_ids.append(tag_id)
+            if any(d.mimic_id == tag_id and _near(d, x, y) is not None for d in distractors):
+                lookalikes.append(tag_id)
             continue
         error, index = min(hits)
         matched.add(index)
-        errors.append(error)
-        found.append(f"{tag['tag_id']}@({x:.1f},{y:.1f}) c={float(tag['closeness_metric']):.3f}")
-    missed = sorted(m.tag_id for i, m in enumerate(markers) if m.visible and i not in matched)
-    worst = f"{max(errors):.2f}" if errors else "-"
-    return (
-        f"  truth: {len(visible)} visible; found {' '.join(found) or '-'}; "
-        f"centre error <= {worst} px; missed {missed or '-'}; false ids {false_ids or '-'}"
+        read.append((tag_id, error))
+    not_read = tuple(
+        (m.tag_id, Agreement.why_not_read(m))
+        for i, m in enumerate(markers)
+        if m.visible and i not in matched
     )
+    in_view = sum(m.visible for m in markers)
+    return Agreement(in_view, tuple(read), not_read, tuple(false_ids), tuple(lookalikes))
+
+
+_WHY: Final = {
+    "hidden": "partly hidden by a nearer object",
+    "too far": f"too far: under {MIN_READABLE_SIDE_PX:.0f} px a side",
+    "other": "not read (blur, angle or light)",
+}
+
+
+def format_agreement(result: Agreement, markers: Sequence[MarkerTruth]) -> str:
+    """The truth line printed under each record."""
+    sides = {m.tag_id: m.side_px for m in markers}
+    read = ", ".join(f"{tag_id} ({error:.2f} px off)" for tag_id, error in result.read)
+    not_read = ", ".join(
+        f"{tag_id} ({sides[tag_id]:.0f} px, {_WHY[why]})" for tag_id, why in result.not_read
+    )
+    false = "no false id"
+    if result.false_ids:
+        false = f"reported where no such tag is: {list(result.false_ids)}"
+        if result.on_lookalikes:
+            false += f" ({len(result.on_lookalikes)} on the scene's look-alikes)"
+    return (
+        f"  truth: {result.in_view} tags in view; read {read or 'none'}; "
+        f"not read {not_read or 'none'}; {false}"
+    )
+
+
+@dataclass(slots=True)
+class Summary:
+    """The whole run's agreement, printed when the demo ends."""
+
+    frames: int = 0
+    in_view: int = 0
+    read: int = 0
+    not_read: Counter[str] = field(default_factory=Counter)
+    false_ids: int = 0
+    on_lookalikes: int = 0
+
+    def add(self, result: Agreement) -> None:
+        self.frames += 1
+        self.in_view += result.in_view
+        self.read += len(result.read)
+        self.not_read.update(why for _tag_id, why in result.not_read)
+        self.false_ids += len(result.false_ids)
+        self.on_lookalikes += len(result.on_lookalikes)
+
+    def format(self, sent: int) -> str:
+        share = f" ({100 * self.read / self.in_view:.0f} %)" if self.in_view else ""
+        reasons = ", ".join(f"{why} {self.not_read[why]}" for why in _WHY if self.not_read[why])
+        return (
+            f"demo: {self.frames} of {sent} frames answered (the newest frame wins: a busy "
+            f"machine skips some); {self.in_view} tags in view, {self.read} read{share}, "
+            f"{sum(self.not_read.values())} not read{f' ({reasons})' if reasons else ''}; "
+            f"{self.false_ids} false ids{self._lookalike_note()}"
+        )
+
+    def _lookalike_note(self) -> str:
+        if not self.on_lookalikes:
+            return ""
+        return (
+            f" ({self.on_lookalikes} on the scene's look-alikes: shapes that carry a valid "
+            "code, which OpenCV's decoder accepts)"
+        )
 
 
 def publish_camera(
@@ -189,19 +301,19 @@ def main(
     )
     scenes = drive_forever(resolution, fps, settings.dictionary)
     # the truth of the frames put, by stamp, until their record is shown
-    truths: dict[int, tuple[MarkerTruth, ...]] = {}
+    truths: dict[int, Scene] = {}
     lock = threading.Lock()
 
     def remember(stamp_ns: int, scene: Scene) -> None:
         with lock:
-            truths[stamp_ns] = scene.markers
+            truths[stamp_ns] = scene
             while len(truths) > MAX_TRUTHS:
                 del truths[next(iter(truths))]
 
     with open_zenoh(conf) as session:
 
-        def camera() -> None:
-            publish_camera(
+        def camera() -> int:
+            return publish_camera(
                 session,
                 settings.input_key,
                 scenes,
@@ -218,20 +330,28 @@ def main(
             camera()
             return 0
 
+        summary = Summary()
+
         def show(sample: zenoh.Sample) -> None:
             record = decode_record(sample.payload.to_bytes())
             with lock:
-                markers = truths.pop(int(record["stamp_ns"]), None)
+                scene = truths.pop(int(record["stamp_ns"]), None)
             lines = [format_decoded_record(str(sample.key_expr), record, as_json=False)]
-            if markers is not None:
-                lines.append(agreement(record, markers))
+            if scene is not None:
+                result = agreement(record, scene.markers, scene.distractors)
+                with lock:
+                    summary.add(result)
+                lines.append(format_agreement(result, scene.markers))
             print("\n".join(lines), file=out, flush=True)
 
         with PerceptionService(session, settings):
             subscriber = session.declare_subscriber(settings.record_key, show)
+            sent = 0
             try:
-                camera()
+                sent = camera()
                 stop.wait(0.5 if limit else 0)  # let the last frame's record arrive
             finally:
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
+            with lock:
+                print(summary.format(sent), file=out, flush=True)
     return 0
