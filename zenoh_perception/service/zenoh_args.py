@@ -9,11 +9,25 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Final
 
 import zenoh
 
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
+
+#: rmw_zenoh's default session configuration (its DEFAULT_RMW_ZENOH_SESSION_CONFIG.json5, as
+#: its design document tabulates it): a peer that reaches the ROS 2 router (``rmw_zenohd``) on
+#: this host, listens on loopback for the peer-to-peer links gossip scouting sets up, and does
+#: no multicast scouting. Used with ``ros_transport = "rmw_zenoh"`` when no ``-c`` file is given.
+RMW_ZENOH_SESSION_DEFAULTS: Final[Mapping[str, object]] = {
+    "mode": "peer",
+    "connect/endpoints": ["tcp/localhost:7447"],
+    "listen/endpoints": ["tcp/localhost:0"],
+    "scouting/multicast/enabled": False,
+    "scouting/gossip/enabled": True,
+}
 
 
 def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
@@ -69,8 +83,13 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
+def zenoh_config_from_args(
+    args: argparse.Namespace, defaults: Mapping[str, object] | None = None
+) -> zenoh.Config:
     """A ``zenoh.Config`` from the flags added by :func:`add_zenoh_arguments`.
+
+    ``defaults`` (config path -> value) stand in for Zenoh's own defaults when no ``-c`` file
+    is given; the flags override them either way.
 
     Raises:
         SettingsError: unreadable config file or a malformed ``--cfg``.
@@ -78,6 +97,9 @@ def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
     """
     try:
         conf = zenoh.Config.from_file(str(args.config)) if args.config else zenoh.Config()
+        if not args.config:
+            for path, value in (defaults or {}).items():
+                conf.insert_json5(path, json.dumps(value))
         if args.mode is not None:
             conf.insert_json5("mode", json.dumps(args.mode))
         if args.connect:
