@@ -11,6 +11,7 @@ import pytest
 
 from zenoh_perception.errors import SessionError, SettingsError
 from zenoh_perception.service.zenoh_args import (
+    RMW_ZENOH_SESSION_DEFAULTS,
     add_zenoh_arguments,
     open_zenoh,
     zenoh_config_from_args,
@@ -102,3 +103,26 @@ def test_a_session_that_cannot_open_is_a_session_error_naming_the_endpoint() -> 
 def test_an_open_session_is_returned(endpoint: str) -> None:
     with open_zenoh(zenoh_config_from_args(_parse("-l", endpoint, "--no-multicast-scouting"))) as s:
         assert str(s.zid())
+
+
+def test_rmw_zenoh_defaults_stand_in_for_zenohs_and_flags_override_them() -> None:
+    conf = zenoh_config_from_args(_parse(), RMW_ZENOH_SESSION_DEFAULTS)
+    assert json.loads(conf.get_json("mode")) == "peer"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/localhost:7447"]
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/localhost:0"]
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is True
+    moved = zenoh_config_from_args(
+        _parse("-e", "tcp/127.0.0.1:7000", "-m", "client"), RMW_ZENOH_SESSION_DEFAULTS
+    )
+    assert json.loads(moved.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7000"]
+    assert json.loads(moved.get_json("mode")) == "client"
+    assert json.loads(moved.get_json("listen/endpoints")) == ["tcp/localhost:0"]
+
+
+def test_a_config_file_replaces_the_rmw_zenoh_defaults(tmp_path: Path) -> None:
+    path = tmp_path / "session.json5"
+    path.write_text('{ mode: "client" }\n')
+    conf = zenoh_config_from_args(_parse("-c", str(path)), RMW_ZENOH_SESSION_DEFAULTS)
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert "localhost:7447" not in conf.get_json("connect/endpoints")
