@@ -300,3 +300,39 @@ def test_several_dictionaries_are_one_setting_in_opencvs_spelling() -> None:
     assert settings.dictionary == "DICT_4X4_50, DICT_APRILTAG_16h5"
     with pytest.raises(SettingsError, match="unknown ArUco dictionary"):
         settings_from_mapping({"dictionary": "DICT_4X4_50,"})
+
+
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"ros_transport": "dds"}, "ros_transport"),
+        ({"ros_domain_id": 233}, "ros_domain_id"),
+        ({"ros_domain_id": -1}, "ros_domain_id"),
+        ({"ros_node_name": "zenoh-perception"}, "ros_node_name"),
+        ({"ros_node_name": ""}, "ros_node_name"),
+        ({"ros_namespace": "rover"}, "ros_namespace"),
+        ({"ros_namespace": "/rover/"}, "ros_namespace"),
+        ({"ros_transport": "rmw_zenoh", "input_key": "zed/*/image"}, "input_key"),
+        ({"ros_transport": "rmw_zenoh", "tag_key": "perception/1tag"}, "tag_key"),
+        ({"ros_transport": "rmw_zenoh", "camera_info_key": "zed/**"}, "camera_info_key"),
+    ],
+)
+def test_ros_graph_settings_are_validated_naming_the_setting(
+    values: dict[str, object], named: str
+) -> None:
+    with pytest.raises(SettingsError, match=named):
+        settings_from_mapping(values)
+
+
+def test_ros_graph_settings_that_ros_accepts() -> None:
+    settings = settings_from_mapping(
+        {
+            "ros_transport": "rmw_zenoh",
+            "ros_domain_id": 232,
+            "ros_node_name": "perception_2",
+            "ros_namespace": "/rover/left",
+        }
+    )
+    assert settings.ros_transport == "rmw_zenoh"
+    # wildcards stay fine for the bridge, whose keys are no ROS names
+    assert settings_from_mapping({"input_key": "zed/*/image"}).input_key == "zed/*/image"

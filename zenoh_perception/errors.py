@@ -59,6 +59,12 @@ class MessageDecodeError(PerceptionError):
     """An output message (tag CDR or perception record) could not be decoded."""
 
 
+class RmwZenohError(MessageDecodeError):
+    """An rmw_zenoh attachment or liveliness token is not of rmw_zenoh's form."""
+
+    reason = "bad_rmw_zenoh"
+
+
 class PayloadTooLargeError(FrameDecodeError):
     """The frame payload holds more bytes than ``max_frame_bytes`` allows."""
 

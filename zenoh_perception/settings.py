@@ -10,7 +10,9 @@ Validation (every failure is a :class:`SettingsError` naming the setting; the CL
 - keys are Zenoh key expressions as written (no auto-canonisation); the inputs
   (``input_key``, ``camera_info_key``) may hold wildcards, every key the service publishes,
   serves or declares on must be concrete, and no output may intersect an input;
-- ``ros_package`` is a valid ROS package name;
+- ``ros_package`` is a valid ROS package name; ``ros_node_name`` and ``ros_namespace`` are
+  valid ROS names, and with ``ros_transport = "rmw_zenoh"`` every key of a ROS topic is a
+  relative ROS topic name;
 - intrinsics, when given, are plausible (:func:`~zenoh_perception.tags.geometry.check_intrinsics`);
 - the settings file is a regular UTF-8 file of at most :data:`MAX_SETTINGS_FILE_BYTES`.
 """
@@ -41,6 +43,13 @@ from zenoh_perception.tags.geometry import (
     check_intrinsics,
 )
 from zenoh_perception.tags.selection import Metric, Policy
+from zenoh_perception.wire.rmw_zenoh import (
+    DOMAIN_ID_MAX,
+    is_namespace,
+    is_node_name,
+    is_relative_topic,
+)
+from zenoh_perception.wire.ros_topics import ROS_TOPICS
 
 METRICS = tuple(Metric)
 
@@ -92,6 +101,18 @@ class Settings:
     )
     ros_package: str = field(
         default="mrover", metadata=_doc("ROS package of StarterProjectTag (type name only)")
+    )
+    # ROS 2 graph
+    ros_transport: str = field(
+        default="bridge",
+        metadata=_doc("'bridge' (zenoh-bridge-ros2dds) or 'rmw_zenoh' (a ROS 2 node itself)"),
+    )
+    ros_domain_id: int = field(default=0, metadata=_doc("rmw_zenoh: ROS_DOMAIN_ID of the graph"))
+    ros_node_name: str = field(
+        default="zenoh_perception", metadata=_doc("rmw_zenoh: the service's ROS node name")
+    )
+    ros_namespace: str = field(
+        default="", metadata=_doc("rmw_zenoh: the node's namespace, e.g. '/rover'; '' = '/'")
     )
     # Detection
     dictionary: str = field(
@@ -231,6 +252,7 @@ BOUNDS: Final[Mapping[str, Bound]] = {
     "stats_interval_s": Bound(0.1, 86_400, zero="off"),
     "log_interval_s": Bound(0.1, 86_400),
     "no_tag_hint_s": Bound(1, 86_400, zero="off"),
+    "ros_domain_id": Bound(0, DOMAIN_ID_MAX),
 }
 #: Sizes in ``tag_sizes``, metres.
 TAG_SIZE_BOUND: Final = Bound(0.001, 100)
@@ -339,9 +361,45 @@ def _validate_intrinsics(settings: Settings) -> None:
         raise SettingsError(msg) from err
 
 
+ROS_TRANSPORTS: Final = ("bridge", "rmw_zenoh")
+
+
+def _validate_ros(settings: Settings) -> None:
+    if settings.ros_transport not in ROS_TRANSPORTS:
+        msg = (
+            f"ros_transport must be one of {', '.join(ROS_TRANSPORTS)}, "
+            f"not {settings.ros_transport!r}"
+        )
+        raise SettingsError(msg)
+    if not is_node_name(settings.ros_node_name):
+        msg = (
+            f"ros_node_name {settings.ros_node_name!r} is not a ROS node name (letters, digits "
+            "and underscores, not starting with a digit)"
+        )
+        raise SettingsError(msg)
+    if not is_namespace(settings.ros_namespace):
+        msg = (
+            f"ros_namespace {settings.ros_namespace!r} is not a ROS namespace ('' or absolute, "
+            "e.g. '/rover', tokens of letters, digits and underscores, no trailing '/')"
+        )
+        raise SettingsError(msg)
+    if settings.ros_transport != "rmw_zenoh":
+        return
+    for topic in ROS_TOPICS:  # on an rmw_zenoh graph each of these keys is a ROS topic name
+        value = getattr(settings, topic.key_setting)
+        if value and not is_relative_topic(value):
+            msg = (
+                f"{topic.key_setting} = {value!r} is not a relative ROS topic name, as "
+                "ros_transport = 'rmw_zenoh' needs (tokens of letters, digits and underscores "
+                "separated by '/', no wildcards)"
+            )
+            raise SettingsError(msg)
+
+
 def _validate(settings: Settings) -> None:
     _validate_keys(settings)
     check_ros_package(settings.ros_package)
+    _validate_ros(settings)
     if settings.policy not in tuple(Policy):
         msg = f"policy must be one of {', '.join(Policy)}, not {settings.policy!r}"
         raise SettingsError(msg)

@@ -173,3 +173,16 @@ def test_stop_ends_an_endless_echo_with_0(endpoint: str) -> None:
 def test_an_invalid_ros_package_is_refused_before_any_session() -> None:
     with pytest.raises(SettingsError, match="ros_package"):
         echo.main(loopback_config(), ros_package="Not-A-Package")
+
+
+def test_echo_reads_the_tag_where_the_ros_transport_puts_it() -> None:
+    assert echo.RosGraph().tag_key("tag", "mrover") == "tag"
+    rmw = echo.RosGraph("rmw_zenoh", 3, "/rover")
+    assert rmw.tag_key("tag", "rover_msgs") == (
+        "3/rover/tag/rover_msgs::msg::dds_::StarterProjectTag_/*"
+    )
+    for bad in (echo.RosGraph("rmw_zenoh", 233), echo.RosGraph("rmw_zenoh", 0, "rover")):
+        with pytest.raises(SettingsError):
+            bad.tag_key("tag", "mrover")
+    with pytest.raises(SettingsError):
+        rmw.tag_key("t*", "mrover")

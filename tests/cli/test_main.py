@@ -47,12 +47,12 @@ def _subcommands() -> set[str]:
 
 
 def test_the_subcommands() -> None:
-    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "bench"}
+    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "probe", "bench"}
 
 
 @pytest.mark.parametrize("command", sorted(_subcommands()))
 def test_each_subcommand_has_a_handler(command: str) -> None:
-    argv = [command, "recording.mcap"] if command == "replay" else [command]
+    argv = [command, "recording.mcap"] if command in {"replay", "probe"} else [command]
     args = cli.build_parser().parse_args(argv)
     assert callable(args.handler)
     assert args.command == command

@@ -13,6 +13,7 @@ import pytest
 
 from zenoh_perception.errors import SessionError, SettingsError
 from zenoh_perception.service.zenoh_args import (
+    RMW_ZENOH_SESSION_DEFAULTS,
     add_zenoh_arguments,
     open_zenoh,
     zenoh_config_from_args,
@@ -167,3 +168,26 @@ def test_a_deeply_nested_cfg_value_is_refused() -> None:
 def _write(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path
+
+
+def test_rmw_zenoh_defaults_stand_in_for_zenohs_and_flags_override_them() -> None:
+    conf = zenoh_config_from_args(_parse(), RMW_ZENOH_SESSION_DEFAULTS)
+    assert json.loads(conf.get_json("mode")) == "peer"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/localhost:7447"]
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/localhost:0"]
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is True
+    moved = zenoh_config_from_args(
+        _parse("-e", "tcp/127.0.0.1:7000", "-m", "client"), RMW_ZENOH_SESSION_DEFAULTS
+    )
+    assert json.loads(moved.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7000"]
+    assert json.loads(moved.get_json("mode")) == "client"
+    assert json.loads(moved.get_json("listen/endpoints")) == ["tcp/localhost:0"]
+
+
+def test_a_config_file_replaces_the_rmw_zenoh_defaults(tmp_path: Path) -> None:
+    path = tmp_path / "session.json5"
+    path.write_text('{ mode: "client" }\n')
+    conf = zenoh_config_from_args(_parse("-c", str(path)), RMW_ZENOH_SESSION_DEFAULTS)
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert "localhost:7447" not in conf.get_json("connect/endpoints")

@@ -9,14 +9,18 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY, DEFAULT_RATE_HZ
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
-from zenoh_perception.service.zenoh_args import add_zenoh_arguments, zenoh_config_from_args
+from zenoh_perception.service.zenoh_args import (
+    RMW_ZENOH_SESSION_DEFAULTS,
+    add_zenoh_arguments,
+    zenoh_config_from_args,
+)
 from zenoh_perception.settings import (
     Settings,
     add_settings_arguments,
@@ -26,9 +30,14 @@ from zenoh_perception.settings import (
 )
 
 
+def _session_defaults(ros_transport: str) -> Mapping[str, object] | None:
+    """rmw_zenoh's session defaults on an rmw_zenoh graph, else Zenoh's own."""
+    return RMW_ZENOH_SESSION_DEFAULTS if ros_transport == "rmw_zenoh" else None
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
-    conf = zenoh_config_from_args(args)
+    conf = zenoh_config_from_args(args, _session_defaults(settings.ros_transport))
     from zenoh_perception.service import node  # noqa: PLC0415
 
     return node.run(conf, settings, stop_on_signals())
@@ -38,10 +47,11 @@ def _cmd_echo(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import echo  # noqa: PLC0415
 
     return echo.main(
-        zenoh_config_from_args(args),
+        zenoh_config_from_args(args, _session_defaults(args.ros_transport)),
         tag_key=args.tag_key,
         record_key=args.record_key,
         ros_package=args.ros_package,
+        ros=echo.RosGraph(args.ros_transport, args.ros_domain_id, args.ros_namespace),
         records=not args.tags_only,
         as_json=args.json,
         count=args.count,
@@ -106,6 +116,18 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--record-key", default="perception/tags", help="record key (default: perception/tags)"
     )
     parser.add_argument("--ros-package", default="mrover", help="ROS package of the tag type")
+    parser.add_argument(
+        "--ros-transport",
+        choices=("bridge", "rmw_zenoh"),
+        default="bridge",
+        help="bridge: the plain tag key; rmw_zenoh: the tag's rmw_zenoh key (default: bridge)",
+    )
+    parser.add_argument(
+        "--ros-domain-id", type=int, default=0, help="rmw_zenoh: ROS_DOMAIN_ID (default 0)"
+    )
+    parser.add_argument(
+        "--ros-namespace", default="", help="rmw_zenoh: the service's namespace (default '')"
+    )
     parser.add_argument("--tags-only", action="store_true", help="do not print records")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     parser.add_argument("--count", type=int, default=0, help="exit after N lines (0: never)")

@@ -19,10 +19,18 @@ from typing import Any, NamedTuple, TextIO
 
 import zenoh
 
-from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.errors import MessageDecodeError, SettingsError
 from zenoh_perception.service.zenoh_args import open_zenoh
-from zenoh_perception.settings import check_ros_package
+from zenoh_perception.settings import check_bound, check_ros_package
 from zenoh_perception.wire.records import TagCodec, decode_record
+from zenoh_perception.wire.rmw_zenoh import (
+    ANY_HASH,
+    fully_qualified,
+    is_namespace,
+    is_relative_topic,
+    topic_key,
+)
+from zenoh_perception.wire.ros_topics import ros_topic
 from zenoh_perception.wire.text import format_decoded_record, format_tag
 
 
@@ -82,6 +90,34 @@ class SeqGaps:
         )
 
 
+@dataclass(frozen=True, slots=True)
+class RosGraph:
+    """How the service meets ROS 2 (its ``ros_transport``, ``ros_domain_id``, ``ros_namespace``)."""
+
+    transport: str = "bridge"
+    domain_id: int = 0
+    namespace: str = ""
+
+    def tag_key(self, tag_key: str, ros_package: str) -> str:
+        """The key the tag arrives on: ``tag_key`` itself through the bridge; on an rmw_zenoh
+        graph the tag topic's rmw_zenoh key, any type hash.
+
+        Raises:
+            SettingsError: a domain id, namespace or tag topic rmw_zenoh cannot have.
+
+        """
+        if self.transport != "rmw_zenoh":
+            return tag_key
+        check_bound("ros_domain_id", self.domain_id)
+        if not is_namespace(self.namespace) or not is_relative_topic(tag_key):
+            msg = f"--ros-namespace {self.namespace!r} / --tag-key {tag_key!r}: not ROS names"
+            raise SettingsError(msg)
+        ros_type = ros_topic("tag").type_name(ros_package)
+        return topic_key(
+            self.domain_id, fully_qualified(self.namespace, tag_key), ros_type, ANY_HASH
+        )
+
+
 class _Line(NamedTuple):
     text: str
     counted: bool  # counts toward --count (gap lines do not)
@@ -93,6 +129,7 @@ def main(
     tag_key: str = "tag",
     record_key: str = "perception/tags",
     ros_package: str = "mrover",
+    ros: RosGraph | None = None,
     records: bool = True,
     as_json: bool = False,
     count: int = 0,
@@ -106,12 +143,15 @@ def main(
 
     Returns 0, or 1 when ``count`` lines did not arrive before ``timeout``.
 
+    ``ros`` says where the tag comes (default: the bridge's plain key).
+
     Raises:
-        SettingsError: ``ros_package`` is not a ROS package name.
+        SettingsError: ``ros_package`` is not a ROS package name, or ``ros`` holds no ROS names.
         SessionError: the Zenoh session cannot be opened.
 
     """
     codec = TagCodec(check_ros_package(ros_package))
+    tag_key = (ros or RosGraph()).tag_key(tag_key, ros_package)
     lines: queue.Queue[_Line] = queue.Queue()
     stop = stop or threading.Event()
     gaps = SeqGaps()

@@ -46,6 +46,7 @@ from zenoh_perception.errors import (
 from zenoh_perception.pipeline import Analysis, Pipeline
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
+from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import decode_camera_info
@@ -83,6 +84,8 @@ class _Arrival:
     sample: zenoh.Sample
     received_ns: int  # monotonic clock
     wall_ns: int  # time since the epoch
+    #: Came on an rmw_zenoh key: sensor_msgs/Image CDR, its attachment rmw_zenoh's own.
+    ros_cdr: bool = False
 
 
 class PerceptionService:
@@ -94,6 +97,7 @@ class PerceptionService:
         self.settings = settings
         self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
         self._session = session
+        self._ros = RosTransport(session, settings)
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
         self._gate = LogGate(settings.log_interval_s)
@@ -132,8 +136,9 @@ class PerceptionService:
             kv(
                 version=__version__,
                 zid=self._session.zid(),
-                input=self.settings.input_key,
-                tag=self.settings.tag_key,
+                ros_transport=self.settings.ros_transport,
+                input=self._ros.key("camera"),
+                tag=self._tag_pub.key,
                 record=self.settings.record_key,
                 detector=self.settings.detector,
                 dictionary=self.settings.dictionary,
@@ -146,24 +151,21 @@ class PerceptionService:
 
     def _declare(self) -> None:
         s, session = self.settings, self._session
-        self._tag_pub = session.declare_publisher(
-            s.tag_key, encoding=zenoh.Encoding.APPLICATION_CDR, express=True
-        )
+        node_token = self._ros.declare_node()
+        if node_token is not None:
+            self._declared.append(node_token)
+        self._tag_pub = self._ros.publisher("tag", express=True)
         self._record_pub = session.declare_publisher(
             s.record_key, encoding=MSGPACK_ENCODING, express=True
         )
         self._declared += [self._tag_pub, self._record_pub]
-        self._debug_pub: zenoh.Publisher | None = None
+        self._debug_pub: TopicPublisher | None = None
         if s.debug_image:
-            self._debug_pub = session.declare_publisher(
-                s.debug_image_key, encoding=zenoh.Encoding.APPLICATION_CDR
-            )
+            self._debug_pub = self._ros.publisher("debug_image")
             listener = self._debug_pub.declare_matching_listener(self._on_debug_matching)
             self._declared += [listener, self._debug_pub]
         if s.camera_info_key:
-            self._declared.append(
-                session.declare_subscriber(s.camera_info_key, self._on_camera_info)
-            )
+            self._declared.append(self._ros.subscribe("camera_info", self._on_camera_info))
         self._declared.append(session.declare_queryable(s.status_key, self._on_status_query))
         token_key = f"{s.liveliness_key}/{session.zid()}"
         self._declared.append(session.liveliness().declare_token(token_key))
@@ -181,7 +183,12 @@ class PerceptionService:
         for thread in self._threads:
             thread.start()
         # Subscribe last: every frame that arrives finds the pipeline ready.
-        self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
+        on_camera = self._on_frame
+        if self._ros.rmw_zenoh:
+            # raw frames (msgpack attachment) keep coming on the plain key
+            self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
+            on_camera = self._on_ros_frame
+        self._declared.append(self._ros.subscribe("camera", on_camera))
 
     def close(self) -> None:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
@@ -208,6 +215,10 @@ class PerceptionService:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns())
+        self.stats.on_received(self._mailbox.put(arrival))
+
+    def _on_ros_frame(self, sample: zenoh.Sample) -> None:
+        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), ros_cdr=True)
         self.stats.on_received(self._mailbox.put(arrival))
 
     def _on_debug_matching(self, status: zenoh.MatchingStatus) -> None:
@@ -315,7 +326,7 @@ class PerceptionService:
         check_payload_size(len(sample.payload), s.max_frame_bytes)
         payload = sample.payload.to_bytes()
         attachment = sample.attachment
-        if attachment is not None:
+        if attachment is not None and not arrival.ros_cdr:
             frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
             source = "raw"
         else:
@@ -421,7 +432,9 @@ class PerceptionService:
         if self._publish(self._debug_pub, "debug_image", payload):
             self._debug_images += 1
 
-    def _publish(self, publisher: zenoh.Publisher, output: str, payload: bytes) -> bool:
+    def _publish(
+        self, publisher: TopicPublisher | zenoh.Publisher, output: str, payload: bytes
+    ) -> bool:
         """Put ``payload``; a failure is counted by ``output`` and logged (rate-limited)."""
         try:
             publisher.put(payload)

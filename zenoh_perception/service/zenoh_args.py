@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Final
 
@@ -16,6 +17,18 @@ import zenoh
 
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
 from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
+
+#: rmw_zenoh's default session configuration (its DEFAULT_RMW_ZENOH_SESSION_CONFIG.json5, as
+#: its design document tabulates it): a peer that reaches the ROS 2 router (``rmw_zenohd``) on
+#: this host, listens on loopback for the peer-to-peer links gossip scouting sets up, and does
+#: no multicast scouting. Used with ``ros_transport = "rmw_zenoh"`` when no ``-c`` file is given.
+RMW_ZENOH_SESSION_DEFAULTS: Final[Mapping[str, object]] = {
+    "mode": "peer",
+    "connect/endpoints": ["tcp/localhost:7447"],
+    "listen/endpoints": ["tcp/localhost:0"],
+    "scouting/multicast/enabled": False,
+    "scouting/gossip/enabled": True,
+}
 
 
 def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
@@ -124,8 +137,13 @@ def _insert(conf: zenoh.Config, flag: str, path: str, value: str) -> None:
         raise SettingsError(msg) from err
 
 
-def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
+def zenoh_config_from_args(
+    args: argparse.Namespace, defaults: Mapping[str, object] | None = None
+) -> zenoh.Config:
     """A ``zenoh.Config`` from the flags added by :func:`add_zenoh_arguments`.
+
+    ``defaults`` (config path -> value) stand in for Zenoh's own defaults when no ``-c`` file
+    is given; the flags override them either way.
 
     Raises:
         SettingsError: an unreadable or invalid config file (not a regular UTF-8 file of at
@@ -134,6 +152,9 @@ def zenoh_config_from_args(args: argparse.Namespace) -> zenoh.Config:
 
     """
     conf = _config_file(args.config) if args.config else zenoh.Config()
+    if not args.config:
+        for path, value in (defaults or {}).items():
+            _insert(conf, "defaults", path, json.dumps(value))
     if args.mode is not None:
         _insert(conf, "-m/--mode", "mode", json.dumps(args.mode))
     for flag, name, endpoints in (

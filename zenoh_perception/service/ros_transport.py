@@ -1,0 +1,169 @@
+"""The service's ROS topics on a Zenoh session: plain keys (``bridge``) or a ROS 2 node of its
+own on an rmw_zenoh graph (``rmw_zenoh``).
+
+Each topic is an entry of :data:`~zenoh_perception.wire.ros_topics.ROS_TOPICS`. In bridge mode
+an entry is its plain key (zenoh-bridge-ros2dds does the rest). In rmw_zenoh mode the service
+declares the node's liveliness token, and per entry an rmw_zenoh key
+(``<domain>/<topic>/<DDS type>/<hash>``, ``*`` in the hash of subscriptions) with its ``MP``
+or ``MS`` token; every sample it publishes carries rmw_zenoh's attachment (sequence number,
+source timestamp, GID). The formats are built in :mod:`zenoh_perception.wire.rmw_zenoh`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.messages import make_typestore
+from zenoh_perception.wire.rmw_zenoh import (
+    ANY_HASH,
+    PUBLISHER,
+    SUBSCRIPTION,
+    Attachment,
+    NodeInfo,
+    fully_qualified,
+    gid_of,
+    topic_key,
+    type_hash,
+)
+from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
+
+RMW_ZENOH: str = "rmw_zenoh"
+
+
+class TopicPublisher:
+    """A Zenoh publisher of one ROS topic; with a GID, each put carries rmw_zenoh's attachment.
+
+    ``put`` is called from one thread (the service's worker).
+    """
+
+    def __init__(
+        self,
+        publisher: zenoh.Publisher,
+        *,
+        gid: bytes | None = None,
+        token: zenoh.LivelinessToken | None = None,
+    ) -> None:
+        self._publisher = publisher
+        self._gid = gid
+        self._token = token
+        self._seq = 0
+        self.key = str(publisher.key_expr)
+
+    def put(self, payload: bytes) -> None:
+        if self._gid is None:
+            self._publisher.put(payload)
+            return
+        self._seq += 1  # rmw_zenoh's first sample is number 1
+        attachment = Attachment(self._seq, time.time_ns(), self._gid).encode()
+        self._publisher.put(payload, attachment=attachment)
+
+    def declare_matching_listener(
+        self, callback: Callable[[zenoh.MatchingStatus], Any]
+    ) -> zenoh.MatchingListener[Any]:
+        return self._publisher.declare_matching_listener(callback)
+
+    def undeclare(self) -> None:
+        _undeclare(self._token, self._publisher)
+
+
+def _undeclare(*entities: Any) -> None:
+    """Undeclare each Zenoh entity given (None: nothing there), the token first."""
+    for entity in entities:
+        if entity is not None:
+            entity.undeclare()
+
+
+class _Subscription:
+    """A subscriber and, on an rmw_zenoh graph, its liveliness token."""
+
+    def __init__(self, subscriber: zenoh.Subscriber[None], token: zenoh.LivelinessToken | None):
+        self._subscriber = subscriber
+        self._token = token
+        self.key = str(subscriber.key_expr)
+
+    def undeclare(self) -> None:
+        _undeclare(self._token, self._subscriber)
+
+
+class RosTransport:
+    """Declares the service's ROS topics on ``session`` as ``settings.ros_transport`` says."""
+
+    def __init__(self, session: zenoh.Session, settings: Settings) -> None:
+        self._session = session
+        self._settings = settings
+        self.rmw_zenoh = settings.ros_transport == RMW_ZENOH
+        self.node = NodeInfo(
+            domain_id=settings.ros_domain_id,
+            session_id=str(session.zid()),
+            name=settings.ros_node_name,
+            namespace=settings.ros_namespace,
+        )
+        self._store = make_typestore(settings.ros_package)
+        self._next_entity_id = self.node.node_id + 1
+
+    def declare_node(self) -> zenoh.LivelinessToken | None:
+        """The node's liveliness token (rmw_zenoh), declared before any of its topics."""
+        if not self.rmw_zenoh:
+            return None
+        return self._session.liveliness().declare_token(self.node.node_token())
+
+    def key(self, role: str) -> str:
+        """The Zenoh key (expression) of topic ``role``."""
+        topic = ros_topic(role)
+        bridge_key = str(getattr(self._settings, topic.key_setting))
+        if not self.rmw_zenoh:
+            return bridge_key
+        hash_ = ANY_HASH if topic.any_hash else self._hash(topic)
+        return topic_key(self.node.domain_id, self._fq_topic(topic), self._type(topic), hash_)
+
+    def publisher(self, role: str, *, express: bool = False) -> TopicPublisher:
+        topic = ros_topic(role)
+        assert topic.direction is Direction.PUBLISH, role
+        publisher = self._session.declare_publisher(
+            self.key(role), encoding=zenoh.Encoding.APPLICATION_CDR, express=express
+        )
+        token = self._token(topic, PUBLISHER)
+        if token is None:
+            return TopicPublisher(publisher)
+        return TopicPublisher(
+            publisher,
+            gid=gid_of(token),
+            token=self._session.liveliness().declare_token(token),
+        )
+
+    def subscribe(self, role: str, callback: Callable[[zenoh.Sample], Any]) -> _Subscription:
+        topic = ros_topic(role)
+        assert topic.direction is Direction.SUBSCRIBE, role
+        subscriber = self._session.declare_subscriber(self.key(role), callback)
+        token = self._token(topic, SUBSCRIPTION)
+        declared = None if token is None else self._session.liveliness().declare_token(token)
+        return _Subscription(subscriber, declared)
+
+    def _type(self, topic: RosTopic) -> str:
+        return topic.type_name(self._settings.ros_package)
+
+    def _hash(self, topic: RosTopic) -> str:
+        return type_hash(self._store, self._type(topic))
+
+    def _fq_topic(self, topic: RosTopic) -> str:
+        return fully_qualified(self.node.namespace, str(getattr(self._settings, topic.key_setting)))
+
+    def _token(self, topic: RosTopic, kind: str) -> str | None:
+        """The liveliness token of a new entity of the node (None in bridge mode)."""
+        if not self.rmw_zenoh:
+            return None
+        entity_id, self._next_entity_id = self._next_entity_id, self._next_entity_id + 1
+        return self.node.entity_token(
+            entity_id,
+            kind,
+            self._fq_topic(topic),
+            self._type(topic),
+            # the token names the type's hash even where the key matches every hash
+            hash_=self._hash(topic),
+            qos=topic.qos,
+        )
