@@ -6,7 +6,6 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
-from zenoh_perception.bench.runners import PAIR
 from zenoh_perception.bench.scoring import BUCKETS
 
 
@@ -190,61 +189,122 @@ def _throughput(runs: dict[str, Any]) -> str:
 
 
 def format_dataset_report(report: dict[str, Any]) -> str:
-    """The labelled-dataset bench's tables."""
-    parts = [_totals(report), _sizes(report), _items(report)]
+    """The labelled-dataset bench's tables: OpenCV's default and the service side by side
+    (``a/b`` is OpenCV's figure / the service's)."""
+    parts = [_totals(report), _dictionaries(report), _sizes(report), _items(report)]
+    hints = _hints(report)
+    if hints:
+        parts.append(hints)
     e2e = _dataset_end_to_end(report)
     if e2e:
         parts.append(e2e)
-    parts.append(goals_table(report["goals"], str))
+    parts.append(_dataset_goals(report["goals"]))
     return "\n\n".join(parts)
 
 
+def _pct(summary: dict[str, Any]) -> str:
+    share = summary["share_found"]
+    return "-" if share is None else f"{100.0 * share:.1f}%"
+
+
+def _side(report_row: dict[str, Any], key: str) -> str:
+    """OpenCV's figure / the service's."""
+    return f"{report_row['opencv'][key]}/{report_row['service'][key]}"
+
+
+def _ids(counts: dict[str, int]) -> str:
+    """``{"7": 2, "3": 1}`` as ``3, 7x2``; ``-`` for none."""
+    if not counts:
+        return "-"
+    shown = [
+        k if n == 1 else f"{k}x{n}" for k, n in sorted(counts.items(), key=lambda e: int(e[0]))
+    ]
+    return ", ".join(shown[:6]) + (", ..." if len(shown) > 6 else "")
+
+
+_SIDE_HEADERS = ["found", "share o/s", "false o/s", "unverified o/s", "ms o/s"]
+
+
+def _side_cells(row: dict[str, Any]) -> list[str]:
+    return [
+        _side(row, "found"),
+        f"{_pct(row['opencv'])}/{_pct(row['service'])}",
+        _side(row, "false_ids"),
+        _side(row, "unverified"),
+        f"{fmt(row['opencv']['mean_ms'])}/{fmt(row['service']['mean_ms'])}",
+    ]
+
+
 def _totals(report: dict[str, Any]) -> str:
-    headers = ["group", "frames", "labelled"]
-    for who in PAIR:
-        headers += [f"{who} found", f"{who} false", f"{who} med ms", f"{who} mean ms"]
     rows = []
-    for name, group in report["groups"].items():
-        row = [name, str(group["opencv"]["frames"]), str(group["opencv"]["labelled"])]
-        for who in PAIR:
-            s = group[who]
-            row += [str(s["found"]), str(s["false_ids"]), fmt(s["median_ms"]), fmt(s["mean_ms"])]
-        rows.append(row)
-    return "Totals (found = labelled markers reported; on video, id-frames)\n" + table(
-        headers, rows
+    groups = {**report["groups"], "all": report["all"]}
+    for name, group in groups.items():
+        if group["opencv"]["frames"] == 0:
+            continue
+        rows.append(
+            [
+                name,
+                str(group["opencv"]["frames"]),
+                str(group["opencv"]["labelled"]),
+                *_side_cells(group),
+            ]
+        )
+    return (
+        "Totals (o/s = OpenCV default / service; found = labelled markers reported, on video"
+        " id-frames; false = ids the labels do not hold; unverified = ids of markers seen but"
+        " not read; ms = mean per frame)\n"
+        + table(["group", "frames", "labelled", *_SIDE_HEADERS], rows)
+    )
+
+
+def _dictionaries(report: dict[str, Any]) -> str:
+    rows = [
+        [name, str(d["opencv"]["frames"]), str(d["opencv"]["labelled"]), *_side_cells(d)]
+        for name, d in report["dictionaries"].items()
+    ]
+    return "By dictionary (every item read in it, negatives included)\n" + table(
+        ["dictionary", "frames", "labelled", *_SIDE_HEADERS], rows
     )
 
 
 def _sizes(report: dict[str, Any]) -> str:
     stills = report["groups"]["stills"]
+    videos = report["groups"]["videos"]
+    every = report["all"]
     rows = [
         [
             bucket,
-            str(stills["opencv"]["buckets"][bucket]),
-            str(stills["service"]["buckets"][bucket]),
+            f"{stills['opencv']['buckets'][bucket]}/{stills['service']['buckets'][bucket]}",
+            f"{videos['opencv']['buckets'][bucket]}/{videos['service']['buckets'][bucket]}",
+            f"{every['opencv']['false_buckets'][bucket]}/{every['service']['false_buckets'][bucket]}",
         ]
         for bucket in BUCKETS
     ]
-    return "Stills by marker size (mean side)\n" + table(
-        ["size", "opencv found", "service found"], rows
+    return "By marker size (mean side; o/s = OpenCV default / service)\n" + table(
+        ["size", "stills found o/s", "video id-frames found o/s", "false ids o/s (all)"], rows
     )
 
 
 def _items(report: dict[str, Any]) -> str:
     rows = []
     for item in report["items"]:
-        row = [
-            item["name"] + (" (unsure)" if item["unsure"] else ""),
-            item["kind"],
-            item["dictionary"],
-            f"{item['size'][0]}x{item['size'][1]}",
-            str(item["opencv"]["frames"]),
-            str(item["opencv"]["labelled"]),
-        ]
-        for who in PAIR:
-            s = item[who]
-            row += [f"{s['found']}/{s['false_ids']}", fmt(s["mean_ms"])]
-        rows.append(row)
+        label = item["name"] + (" (unsure)" if item["unsure"] else "")
+        if item["negative"]:
+            label += " (negative)"
+        rows.append(
+            [
+                label,
+                item["kind"],
+                item["dictionary"],
+                f"{item['size'][0]}x{item['size'][1]}",
+                str(item["opencv"]["frames"]),
+                str(item["opencv"]["labelled"]),
+                *_side_cells(item),
+                _ids(item["service"]["missed"]),
+                _ids(item["opencv"]["false_examples"]),
+                _ids(item["service"]["false_examples"]),
+            ]
+        )
     headers = [
         "item",
         "kind",
@@ -252,12 +312,43 @@ def _items(report: dict[str, Any]) -> str:
         "size",
         "frames",
         "labelled",
-        "opencv",
-        "ms",
-        "service",
-        "ms",
+        *_SIDE_HEADERS,
+        "missed (service)",
+        "unexpected (opencv)",
+        "unexpected (service)",
     ]
-    return "Items (found/false ids, mean ms per frame)\n" + table(headers, rows)
+    return "Items (o/s = OpenCV default / service)\n" + table(headers, rows)
+
+
+def _hints(report: dict[str, Any]) -> str | None:
+    lines = [
+        f"  {item['name']} ({item['dictionary']}): {item['hint']}"
+        for item in report["items"]
+        if item.get("hint")
+    ]
+    if not lines:
+        return None
+    return (
+        "Nothing found (OpenCV's default tried the other families and the flipped picture on"
+        " the first frame)\n" + "\n".join(lines)
+    )
+
+
+def _dataset_goals(goals: Sequence[dict[str, Any]]) -> str:
+    rows = [
+        [
+            g["goal"],
+            str(g["value"]),
+            g["threshold"],
+            "PASS" if g["pass"] else "FAIL",
+            g.get("labels", ""),
+            g["note"],
+        ]
+        for g in goals
+    ]
+    return "Goals (against OpenCV's default, and the same figures against the labels)\n" + table(
+        ["goal", "value", "threshold", "result", "against the labels", "note"], rows
+    )
 
 
 def _dataset_end_to_end(report: dict[str, Any]) -> str | None:
