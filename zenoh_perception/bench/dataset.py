@@ -580,7 +580,7 @@ def main(args: argparse.Namespace, settings: Settings) -> int:
     if not args.dataset:  # ``bench --dataset`` with no manifest after it
         msg = "--dataset needs a MANIFEST (or --init FOLDER to write one)"
         raise DatasetError(msg)
-    manifest: Path = args.dataset
+    manifest = Path(args.dataset)
     items = load_manifest(manifest)
     data = data_folder(manifest, args.data)
     progress = Progress(len(items))

@@ -327,9 +327,8 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(
         "--dataset",
-        type=Path,
         nargs="?",
-        const="",
+        const="",  # --dataset --init FOLDER: no manifest (the bench makes it a Path)
         metavar="MANIFEST",
         help="bench a labelled manifest instead (docs/dataset.md)",
     )
