@@ -185,6 +185,7 @@ def test_cli_exit_codes_follow_the_goals(corpus: Path, tmp_path: Path) -> None:
         "groups",
         "dictionaries",
         "all",
+        "refused",
         "goals",
     }
     assert report["goals"] and all(g["pass"] for g in report["goals"])
@@ -255,7 +256,8 @@ def bench(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str
 def one_line_error(run: subprocess.CompletedProcess[str]) -> str:
     """The single error line of a run that exited 2 (and printed no traceback)."""
     assert run.returncode == 2, (run.returncode, run.stdout, run.stderr)
-    lines = run.stderr.strip().splitlines()
+    # the progress bar's lines (on stderr too) aside
+    lines = [ln for ln in run.stderr.strip().splitlines() if not ln.startswith("[")]
     assert len(lines) == 1, run.stderr
     assert lines[0].startswith("zenoh-perception: error: "), lines[0]
     return lines[0]
@@ -329,13 +331,26 @@ def test_a_missing_file_names_the_users_folder(tmp_path: Path) -> None:
     assert "data folder" in line
 
 
-def test_a_picture_declaring_too_many_pixels_is_refused(tmp_path: Path) -> None:
+def test_a_picture_over_max_frame_pixels_is_refused_and_listed(tmp_path: Path) -> None:
     write_still(tmp_path, "big.png", [(3, 120)])
-    manifest = manifest_in(tmp_path, labelled("big", "image", {"3": 1}))
     small = tmp_path / "small.toml"
     small.write_text("max_frame_pixels = 1000\n", encoding="utf-8")
+    manifest = manifest_in(tmp_path, labelled("big", "image", {"3": 1}))
     line = one_line_error(bench(str(manifest), "--settings", str(small)))
+    assert "every item was refused" in line
     assert "640x480 = 307200 pixels, more than max_frame_pixels = 1000" in line
+    # beside a picture that fits, it is listed as refused and the rest is benched
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.full((20, 20, 3), 255, np.uint8))
+    manifest = manifest_in(
+        tmp_path, labelled("big", "image", {"3": 1}), labelled("tiny", "image", {})
+    )
+    out = tmp_path / "r.json"
+    run = bench(str(manifest), "--settings", str(small), "--json", str(out))
+    assert run.returncode == 0, run.stderr
+    report = json.loads(out.read_text(encoding="utf-8"))
+    assert [r["name"] for r in report["refused"]] == ["big"]
+    assert [i["name"] for i in report["items"]] == ["tiny"]
+    assert "  big: " in run.stdout
 
 
 def test_a_huge_declared_png_is_refused_before_it_is_decoded(

@@ -1,9 +1,10 @@
 """``zenoh-perception bench --dataset MANIFEST``: the service's detector against OpenCV's default
 detector on labelled pictures and videos (a camera's own, or the project's real corpus).
 
-The manifest (``corpus/README.md`` describes it) names each item (a still, a video file or a
-sequence of frames), its dictionary and the ids a person read on it. Every frame is turned
-into the BGRA image a camera delivers and run through the two
+The manifest (``docs/dataset.md`` describes it; ``--init FOLDER`` writes one to fill in) names
+each item (a still, a video file or a sequence of frames), its dictionary and the ids a person
+read on it. Every frame, read one at a time, is turned into the BGRA image a camera delivers
+and run through the two
 :mod:`~zenoh_perception.bench.runners` of :data:`~zenoh_perception.bench.runners.PAIR`:
 
 - ``opencv``: OpenCV's default detector as a user would run it, timed with its conversion;
@@ -13,6 +14,8 @@ into the BGRA image a camera delivers and run through the two
 
 Each is scored against the labels (:class:`~zenoh_perception.bench.scoring.Score`; an item
 with no marker is a negative: every id on it is false, in every dictionary the manifest uses).
+On an item where neither found anything, OpenCV's default tries the other families and the
+flipped picture (:func:`nothing_found_hint`).
 With ``--e2e`` each video also goes, frame by frame in lockstep, through service processes
 (``zenoh-perception run``, default and ``--detector opencv``) and through the transport floor
 (:mod:`~zenoh_perception.bench.e2e`), as one stream per video. The verdicts are
@@ -68,6 +71,11 @@ ID_PLACEHOLDER: Final = "<id>"
 
 class DatasetError(PerceptionError):
     """The manifest is malformed, or an item's file is missing, unreadable or too large."""
+
+
+class TooLargeError(DatasetError):
+    """An item's picture or frame has more pixels than ``max_frame_pixels``: the service
+    would refuse it, and the bench does not decode it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,8 +304,8 @@ def _bgra(image: Any) -> Image:
     return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2BGRA), dtype=np.uint8)
 
 
-def _too_large(path: Path, width: int, height: int, max_pixels: int) -> DatasetError:
-    return DatasetError(
+def _too_large(path: Path, width: int, height: int, max_pixels: int) -> TooLargeError:
+    return TooLargeError(
         f"{path}: {width}x{height} = {width * height} pixels, more than max_frame_pixels ="
         f" {max_pixels} (raise it with --settings to bench this picture)"
     )
@@ -311,7 +319,7 @@ def _read_image(path: Path, max_pixels: int) -> Image:
         # no picture of max_pixels needs more than 8 bytes a pixel (16-bit RGBA, stored)
         if size > 8 * max_pixels + (1 << 20):
             msg = f"{path}: {size} bytes, too large for max_frame_pixels = {max_pixels}"
-            raise DatasetError(msg)
+            raise TooLargeError(msg)
         data = path.read_bytes()
     except OSError as err:
         msg = f"cannot read image {path}: {err.strerror}"
@@ -416,46 +424,79 @@ def evaluate(
     dictionaries = sorted({item.dictionary for item in items if not item.negative})
     dictionaries = dictionaries or ["DICT_4X4_50"]
     rows: list[dict[str, Any]] = []
+    refused: list[dict[str, str]] = []
     for item in items:
-        videos = item.kind != "image"
-        tested = dictionaries if item.negative else [item.dictionary]
-        scores = {d: {who: Score() for who in PAIR} for d in tested}
-        kept: list[Image] | None = [] if e2e and videos and not item.negative else None
-        first: Image | None = None
-        for index, image in enumerate(
-            frames(item, data, max_video_frames, settings.max_frame_pixels)
-        ):
-            if first is None:
-                first = image
-            for dictionary in tested:
-                key = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
-                runners = streams.pair(key, dictionary)
-                for who in rotation(PAIR, index):
-                    detections, ms = runners[who].run(image)
-                    scores[dictionary][who].add(item, detections, ms)
-            if kept is not None:
-                kept.append(image)
-        assert first is not None  # frames() raises on an item without any
-        for dictionary in tested:
-            row: dict[str, Any] = {
-                "name": item.name,
-                "kind": item.kind,
-                "dictionary": dictionary,
-                "negative": item.negative,
-                "unsure": item.unsure,
-                "camera": item.camera,
-                "size": [int(first.shape[1]), int(first.shape[0])],
-                **scores[dictionary],
-                "hint": None,
-            }
-            if not item.negative and all(scores[dictionary][w].found == 0 for w in PAIR):
-                unread = scores[dictionary]["service"].unverified == 0
-                row["hint"] = nothing_found_hint(item, first) if unread else None
-            if kept is not None:
-                row["e2e"] = _end_to_end(item, kept, shm, progress)
-            rows.append(row)
+        try:
+            rows += _evaluate_item(
+                item,
+                data,
+                streams,
+                dictionaries=dictionaries,
+                max_video_frames=max_video_frames,
+                e2e=e2e,
+                shm=shm,
+                progress=progress,
+            )
+        except TooLargeError as err:
+            refused.append({"name": item.name, "reason": str(err)})
         tick(progress, item.name)
-    return _report(rows, settings, max_video_frames)
+    if not rows:
+        msg = f"every item was refused: {refused[0]['reason']}" if refused else "no items"
+        raise DatasetError(msg)
+    return _report(rows, refused, settings, max_video_frames)
+
+
+def _evaluate_item(
+    item: Item,
+    data: Path,
+    streams: _Streams,
+    *,
+    dictionaries: Sequence[str],
+    max_video_frames: int,
+    e2e: bool,
+    shm: bool,
+    progress: Progress | None,
+) -> list[dict[str, Any]]:
+    """The item's rows: one per dictionary it is read in."""
+    rows: list[dict[str, Any]] = []
+    videos = item.kind != "image"
+    tested = dictionaries if item.negative else [item.dictionary]
+    scores = {d: {who: Score() for who in PAIR} for d in tested}
+    kept: list[Image] | None = [] if e2e and videos and not item.negative else None
+    first: Image | None = None
+    for index, image in enumerate(
+        frames(item, data, max_video_frames, streams.settings.max_frame_pixels)
+    ):
+        if first is None:
+            first = image
+        for dictionary in tested:
+            key = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
+            runners = streams.pair(key, dictionary)
+            for who in rotation(PAIR, index):
+                detections, ms = runners[who].run(image)
+                scores[dictionary][who].add(item, detections, ms)
+        if kept is not None:
+            kept.append(image)
+    assert first is not None  # frames() raises on an item without any
+    for dictionary in tested:
+        row: dict[str, Any] = {
+            "name": item.name,
+            "kind": item.kind,
+            "dictionary": dictionary,
+            "negative": item.negative,
+            "unsure": item.unsure,
+            "camera": item.camera,
+            "size": [int(first.shape[1]), int(first.shape[0])],
+            **scores[dictionary],
+            "hint": None,
+        }
+        if not item.negative and all(scores[dictionary][w].found == 0 for w in PAIR):
+            unread = scores[dictionary]["service"].unverified == 0
+            row["hint"] = nothing_found_hint(item, first) if unread else None
+        if kept is not None:
+            row["e2e"] = _end_to_end(item, kept, shm, progress)
+        rows.append(row)
+    return rows
 
 
 #: The largest dictionary of each family, tried on an item where nothing was found.
@@ -535,7 +576,9 @@ def _pool(rows: Sequence[dict[str, Any]]) -> dict[str, Score]:
     return pooled
 
 
-def _report(rows: list[dict[str, Any]], settings: Settings, max_frames: int) -> dict[str, Any]:
+def _report(
+    rows: list[dict[str, Any]], refused: list[dict[str, str]], settings: Settings, max_frames: int
+) -> dict[str, Any]:
     stills = [r for r in rows if r["kind"] == "image" and not r["negative"]]
     videos = [r for r in rows if r["kind"] != "image" and not r["negative"]]
     negatives = [r for r in rows if r["negative"]]
@@ -567,6 +610,8 @@ def _report(rows: list[dict[str, Any]], settings: Settings, max_frames: int) -> 
         "groups": summaries(groups),
         "dictionaries": summaries(by_dictionary),
         "all": {who: s.summary() for who, s in everything.items()},
+        # items over max_frame_pixels, not decoded: the service would refuse their frames
+        "refused": refused,
     }
     report["goals"] = dataset_goals(report)
     return report

@@ -6,6 +6,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
+from zenoh_perception.bench.runners import PAIR
 from zenoh_perception.bench.scoring import BUCKETS
 
 
@@ -195,6 +196,11 @@ def format_dataset_report(report: dict[str, Any]) -> str:
     hints = _hints(report)
     if hints:
         parts.append(hints)
+    if report.get("refused"):
+        parts.append(
+            "Refused (over max_frame_pixels: not decoded, the service would refuse these frames)\n"
+            + "\n".join(f"  {r['name']}: {r['reason']}" for r in report["refused"])
+        )
     e2e = _dataset_end_to_end(report)
     if e2e:
         parts.append(e2e)
@@ -213,13 +219,13 @@ def _side(report_row: dict[str, Any], key: str) -> str:
 
 
 def _ids(counts: dict[str, int]) -> str:
-    """``{"7": 2, "3": 1}`` as ``3, 7x2``; ``-`` for none."""
+    """``{"7": 2, "3": 1}`` as ``ids 3, 7x2``; ``-`` for none."""
     if not counts:
         return "-"
     shown = [
         k if n == 1 else f"{k}x{n}" for k, n in sorted(counts.items(), key=lambda e: int(e[0]))
     ]
-    return ", ".join(shown[:6]) + (", ..." if len(shown) > 6 else "")
+    return "ids " + ", ".join(shown[:6]) + (", ..." if len(shown) > 6 else "")
 
 
 _SIDE_HEADERS = ["found", "share o/s", "false o/s", "unverified o/s", "ms o/s"]
@@ -285,9 +291,42 @@ def _sizes(report: dict[str, Any]) -> str:
     )
 
 
+def _negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The items, each negative's rows (one per dictionary it was read in) as one."""
+    out: list[dict[str, Any]] = []
+    merged: dict[str, dict[str, Any]] = {}
+    for item in items:
+        if not item["negative"]:
+            out.append(item)
+            continue
+        if item["name"] not in merged:
+            merged[item["name"]] = {**item, "dictionaries": 0, "times": {w: [] for w in PAIR}}
+            merged[item["name"]].update({w: dict(item[w]) for w in PAIR})
+            out.append(merged[item["name"]])
+            for who in PAIR:
+                merged[item["name"]][who]["false_examples"] = {}
+                for key in ("false_ids", "unverified"):
+                    merged[item["name"]][who][key] = 0
+        entry = merged[item["name"]]
+        entry["dictionaries"] += 1
+        entry["dictionary"] = f"{entry['dictionaries']} dictionaries"
+        for who in PAIR:
+            into, row = entry[who], item[who]
+            into["false_ids"] += row["false_ids"]
+            into["unverified"] += row["unverified"]
+            examples = into["false_examples"]
+            for tag, n in row["false_examples"].items():
+                examples[tag] = examples.get(tag, 0) + n
+            if row["mean_ms"] is not None:
+                entry["times"][who].append(row["mean_ms"])
+            times = entry["times"][who]
+            into["mean_ms"] = sum(times) / len(times) if times else None
+    return out
+
+
 def _items(report: dict[str, Any]) -> str:
     rows = []
-    for item in report["items"]:
+    for item in _negatives_merged(report["items"]):
         label = item["name"] + (" (unsure)" if item["unsure"] else "")
         if item["negative"]:
             label += " (negative)"
@@ -317,7 +356,10 @@ def _items(report: dict[str, Any]) -> str:
         "unexpected (opencv)",
         "unexpected (service)",
     ]
-    return "Items (o/s = OpenCV default / service)\n" + table(headers, rows)
+    return (
+        "Items (o/s = OpenCV default / service; a negative in one row over every dictionary"
+        " it was read in, frames per dictionary)\n" + table(headers, rows)
+    )
 
 
 def _hints(report: dict[str, Any]) -> str | None:
