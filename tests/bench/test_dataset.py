@@ -439,8 +439,14 @@ def test_init_writes_a_manifest_to_fill_in_and_never_overwrites(tmp_path: Path) 
 def test_the_plot_has_a_row_per_item_in_both_colours(tmp_path: Path) -> None:
     write_still(tmp_path, "one.png", [(3, 120)])
     write_still(tmp_path, "two.png", [(3, 120), (7, 100)])
+    write_still(tmp_path, "five.png", [(4, 120)], dictionary="DICT_5X5_100")
+    write_still(tmp_path, "blank.png", [])
     manifest = manifest_in(
-        tmp_path, labelled("one", "image", {"3": 1}), labelled("two", "image", {"3": 1, "7": 1})
+        tmp_path,
+        labelled("one", "image", {"3": 1}),
+        labelled("two", "image", {"3": 1, "7": 1}),
+        {**labelled("five", "image", {"4": 1}), "dictionary": "DICT_5X5_100"},
+        labelled("blank", "image", {}),  # read in both dictionaries, drawn as one row
     )
     plot = tmp_path / "sub" / "plot.png"
     run = bench(str(manifest), "--plot", str(plot))
@@ -450,7 +456,7 @@ def test_the_plot_has_a_row_per_item_in_both_colours(tmp_path: Path) -> None:
     for colour in (OPENCV_COLOUR, SERVICE_COLOUR):
         assert np.all(image == colour, axis=2).any(), colour
     # one row per item, then the size panel
-    assert image.shape[0] == 80 + 26 * 2 + 60 + 26 * len(BUCKETS) * 2
+    assert image.shape[0] == 80 + 26 * 4 + 60 + 26 * len(BUCKETS) * 2
 
 
 def test_hints_say_which_family_or_flip_would_have_found_something(tmp_path: Path) -> None:

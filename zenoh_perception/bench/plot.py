@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.bench.framesets import RESOLUTIONS
+from zenoh_perception.bench.report import negatives_merged
 from zenoh_perception.bench.scoring import BUCKETS
 
 Image = npt.NDArray[np.uint8]
@@ -112,7 +113,7 @@ SERVICE_COLOUR: Final = (200, 110, 20)
 def plot_dataset(report: dict[str, Any], path: Path) -> None:
     """PNG of the labelled-dataset bench: per item, the share of labelled markers found and
     the false ids, OpenCV's default above the service; then the same per marker size."""
-    items = report["items"]
+    items = negatives_merged(report["items"])  # a negative: one row over its dictionaries
     row_h, width, left, bar_w = 26, 1100, 360, 420
     buckets_h = 60 + 26 * len(BUCKETS) * 2
     height = 80 + row_h * len(items) + buckets_h

@@ -291,7 +291,7 @@ def _sizes(report: dict[str, Any]) -> str:
     )
 
 
-def _negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+def negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """The items, each negative's rows (one per dictionary it was read in) as one."""
     out: list[dict[str, Any]] = []
     merged: dict[str, dict[str, Any]] = {}
@@ -326,7 +326,7 @@ def _negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def _items(report: dict[str, Any]) -> str:
     rows = []
-    for item in _negatives_merged(report["items"]):
+    for item in negatives_merged(report["items"]):
         label = item["name"] + (" (unsure)" if item["unsure"] else "")
         if item["negative"]:
             label += " (negative)"
