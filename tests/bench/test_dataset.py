@@ -3,18 +3,34 @@ the service's detector side by side (made-up items: the real corpus is not in CI
 
 from __future__ import annotations
 
+import gc
 import json
+import os
+import re
 import signal
+import subprocess
+import weakref
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import cv2
+import numpy as np
 import pytest
 
 from tests.bench.conftest import H, W, labelled, square
+from tests.helpers import cli_command
 from zenoh_perception.bench import dataset
-from zenoh_perception.bench.dataset import DatasetError, Item, evaluate, frames, load_manifest
-from zenoh_perception.bench.scoring import size_bucket
+from zenoh_perception.bench.dataset import (
+    DatasetError,
+    Item,
+    evaluate,
+    frames,
+    load_manifest,
+    nothing_found_hint,
+)
+from zenoh_perception.bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
+from zenoh_perception.bench.scoring import BUCKETS, size_bucket
 from zenoh_perception.cli import main as cli
 from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings
@@ -52,10 +68,11 @@ def test_every_item_is_scored_for_both_detectors(corpus: Path) -> None:
     assert report["settings"] == {
         "detector": settings.detector,
         "full_scan_period": settings.full_scan_period,
+        "max_frame_pixels": settings.max_frame_pixels,
     }
     # the negative's false id fails that goal; every other goal passes
     failed = [g["goal"] for g in report["goals"] if not g["pass"]]
-    assert failed == ["negatives: false ids"]
+    assert failed == ["negatives: false ids (service)"]
 
 
 def test_a_video_is_read_up_to_max_frames(corpus: Path) -> None:
@@ -110,21 +127,44 @@ def test_an_item_is_read_with_its_labels(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("data", "message"),
     [
-        ({"items": [labelled("a", "photo", {})]}, "kind must be"),
-        ({"items": [{**labelled("a", "image", {}), "dictionary": "DICT_9X9"}]}, "dictionary"),
-        ({"items": [labelled("a", "image", {"x": 1})]}, "item 0"),
-        ({"items": [labelled("a", "image", {"1": 0})]}, "positive"),
+        ({"items": [labelled("a", "photo", {})]}, "item 0 (a): field kind: must be one of"),
+        (
+            {"items": [{**labelled("a", "image", {}), "dictionary": "DICT_9X9"}]},
+            "item 0 (a): field dictionary: unknown ArUco dictionary 'DICT_9X9'",
+        ),
+        ({"items": [labelled("a", "image", {"x": 1})]}, "item 0 (a): field markers: 'x' is not"),
+        ({"items": [labelled("a", "image", {"1": 0})]}, "item 0 (a): field markers 1: must be"),
+        ({"items": [labelled("a", "image", {"50": 1})]}, "id 50 is not in DICT_4X4_50"),
+        (
+            {"items": [{**labelled("a", "image", {}), "markers": [["1", 1]]}]},
+            "item 0 (a): field markers: must be",
+        ),
         ({"items": [labelled("a", "image", {}), labelled("a", "image", {})]}, "used twice"),
-        ({"items": [labelled("../a", "image", {})]}, "plain file name"),
-        ({"items": ["a"]}, "not a table"),
-        ({"items": [labelled("a", "image", {}, mirrored="yes")]}, "mirrored must be"),
+        ({"items": [labelled("../a", "image", {})]}, "item 0: field name: must be a plain"),
+        ({"items": ["a"]}, "item 0: must be a table"),
+        ({"items": [{"name": "a"}]}, "item 0 (a): field kind: required"),
+        ({"items": [{}]}, "item 0: field name: required"),
+        (
+            {"items": [labelled("a", "image", {}, mirrored="yes")]},
+            "item 0 (a): field mirrored: must be true or false",
+        ),
+        (
+            {"items": [labelled("a", "image", {}, unknown_markers=2.5)]},
+            "item 0 (a): field unknown_markers: must be a whole number",
+        ),
+        (
+            {"items": [labelled("a", "image", {}, conditions="dark")]},
+            "item 0 (a): field conditions: must be a list",
+        ),
+        ({"items": []}, "no items"),
+        ({"format": 2, "items": [labelled("a", "image", {})]}, "field format"),
         ({"things": []}, "expected"),
     ],
 )
-def test_malformed_manifests_are_refused(
+def test_malformed_manifests_are_refused_naming_the_item_and_field(
     data: dict[str, Any], message: str, tmp_path: Path
 ) -> None:
-    with pytest.raises(DatasetError, match=message):
+    with pytest.raises(DatasetError, match=re.escape(message)):
         load_manifest_from(data, tmp_path)
 
 
@@ -138,7 +178,16 @@ def test_cli_exit_codes_follow_the_goals(corpus: Path, tmp_path: Path) -> None:
     out = tmp_path / "report.json"
     assert cli.main(["bench", "--dataset", str(clean), *data, "--json", str(out)]) == 0
     report = json.loads(out.read_text(encoding="utf-8"))
-    assert set(report) == {"settings", "max_video_frames", "items", "groups", "goals"}
+    assert set(report) == {
+        "settings",
+        "max_video_frames",
+        "items",
+        "groups",
+        "dictionaries",
+        "all",
+        "refused",
+        "goals",
+    }
     assert report["goals"] and all(g["pass"] for g in report["goals"])
     assert {i["name"] for i in report["items"]} == {i["name"] for i in positives["items"]}
     # settings that drop every tag: the service finds less than OpenCV, the bench says so
@@ -188,3 +237,284 @@ def test_sigterm_during_the_bench_unwinds_through_its_finally_blocks(
     (during,) = handlers
     assert during not in (signal.SIG_DFL, signal.SIG_IGN, before)
     assert signal.getsignal(signal.SIGTERM) == before
+
+
+# -- through the real CLI, as a user runs it ---------------------------------------------------
+
+
+def bench(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    """``zenoh-perception bench --dataset ARGS`` as a subprocess."""
+    return subprocess.run(
+        cli_command("bench", "--dataset", *args),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+def one_line_error(run: subprocess.CompletedProcess[str]) -> str:
+    """The single error line of a run that exited 2 (and printed no traceback)."""
+    assert run.returncode == 2, (run.returncode, run.stdout, run.stderr)
+    # the progress bar's lines (on stderr too) aside
+    lines = [ln for ln in run.stderr.strip().splitlines() if not ln.startswith("[")]
+    assert len(lines) == 1, run.stderr
+    assert lines[0].startswith("zenoh-perception: error: "), lines[0]
+    return lines[0]
+
+
+def write_still(folder: Path, name: str, markers: list[tuple[int, float]], **kw: Any) -> None:
+    """A 640x480 still of markers of the given ids and sides, side by side."""
+    placed = [(tag, square(40 + 210 * k, 150, side)) for k, (tag, side) in enumerate(markers)]
+    image = render_markers(W, H, placed, **kw)
+    cv2.imwrite(str(folder / name), cv2.cvtColor(image, cv2.COLOR_BGRA2BGR))
+
+
+def manifest_in(folder: Path, *items: dict[str, Any]) -> Path:
+    path = folder / "manifest.json"
+    path.write_text(json.dumps({"format": 1, "items": list(items)}), encoding="utf-8")
+    return path
+
+
+HOSTILE: Final = {
+    "empty items": '{"format": 1, "items": []}',
+    "empty item": '{"items": [{}]}',
+    "glob name": json.dumps({"items": [labelled("**", "image", {"1": 1})]}),
+    "1e400": '{"items": [{"name": "a", "kind": "image", "dictionary": "DICT_4X4_50",'
+    ' "markers": {"1": 1e400}}]}',
+    "NaN": '{"items": [{"name": "a", "kind": "image", "dictionary": "DICT_4X4_50",'
+    ' "markers": {}, "unknown_markers": NaN}]}',
+    "deep nesting": '{"items": [' + "[" * 100_000 + "]" * 100_000 + "]}",
+    "huge count": json.dumps({"items": [labelled("a", "image", {"1": 10**18})]}),
+    "huge id": json.dumps({"items": [labelled("a", "image", {"9" * 5000: 1})]}),
+    "huge int": '{"items": [{"name": "a", "kind": "image", "dictionary": "DICT_4X4_50",'
+    ' "markers": {}, "unknown_markers": ' + "9" * 5000 + "}]}",
+    "markers a list": json.dumps(
+        {"items": [{**labelled("a", "image", {}), "markers": [["1", 1]]}]}
+    ),
+    "no kind": '{"items": [{"name": "a", "dictionary": "DICT_4X4_50", "markers": {}}]}',
+    "not JSON": "{items: ",
+    "not UTF-8": '{"items": ["\xff"]}',
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_a_hostile_manifest_is_one_line_and_exit_2(case: str, tmp_path: Path) -> None:
+    (tmp_path / "data").mkdir()
+    path = tmp_path / "m.json"
+    path.write_bytes(HOSTILE[case].encode("latin-1"))
+    line = one_line_error(bench(str(path)))
+    assert "Traceback" not in line
+    assert str(path) in line or "item " in line, line
+
+
+def test_a_manifest_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)  # reading it would block: nobody writes
+    assert "is not a regular file" in one_line_error(bench(str(fifo), timeout=60))
+    assert "is not a regular file" in one_line_error(bench("/dev/zero", timeout=60))
+    assert "is not a regular file" in one_line_error(bench(str(tmp_path)))
+    huge = tmp_path / "huge.json"
+    with huge.open("wb") as file:  # sparse: no disk used
+        file.truncate(dataset.MANIFEST_MAX_BYTES + 1)
+    assert "more than the" in one_line_error(bench(str(huge)))
+    assert "cannot read manifest" in one_line_error(bench(str(tmp_path / "none.json")))
+
+
+def test_a_missing_file_names_the_users_folder(tmp_path: Path) -> None:
+    manifest = manifest_in(tmp_path, labelled("photo", "image", {"3": 1}))
+    line = one_line_error(bench(str(manifest)))
+    assert f"item photo: no file photo.<ext> in {tmp_path}" in line
+    assert "--data" in line
+    assert "rebuild" not in line
+    line = one_line_error(bench(str(manifest), "--data", str(tmp_path / "nowhere")))
+    assert "data folder" in line
+
+
+def test_a_picture_over_max_frame_pixels_is_refused_and_listed(tmp_path: Path) -> None:
+    write_still(tmp_path, "big.png", [(3, 120)])
+    small = tmp_path / "small.toml"
+    small.write_text("max_frame_pixels = 1000\n", encoding="utf-8")
+    manifest = manifest_in(tmp_path, labelled("big", "image", {"3": 1}))
+    line = one_line_error(bench(str(manifest), "--settings", str(small)))
+    assert "every item was refused" in line
+    assert "640x480 = 307200 pixels, more than max_frame_pixels = 1000" in line
+    # beside a picture that fits, it is listed as refused and the rest is benched
+    cv2.imwrite(str(tmp_path / "tiny.png"), np.full((20, 20, 3), 255, np.uint8))
+    manifest = manifest_in(
+        tmp_path, labelled("big", "image", {"3": 1}), labelled("tiny", "image", {})
+    )
+    out = tmp_path / "r.json"
+    run = bench(str(manifest), "--settings", str(small), "--json", str(out))
+    assert run.returncode == 0, run.stderr
+    report = json.loads(out.read_text(encoding="utf-8"))
+    assert [r["name"] for r in report["refused"]] == ["big"]
+    assert [i["name"] for i in report["items"]] == ["tiny"]
+    assert "  big: " in run.stdout
+
+
+def test_a_huge_declared_png_is_refused_before_it_is_decoded(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # 16000 x 16000 declared by its header: decoding would take gigabytes
+    _, small = cv2.imencode(".png", np.zeros((4, 4, 3), np.uint8))
+    data = bytearray(small.tobytes())
+    data[16:24] = (16000).to_bytes(4, "big") * 2
+    (tmp_path / "bomb.png").write_bytes(bytes(data))
+    decoded: list[object] = []
+    monkeypatch.setattr(cv2, "imdecode", lambda *a: decoded.append(a))
+    item = Item("bomb", "image", "DICT_4X4_50", {1: 1})
+    with pytest.raises(DatasetError, match="16000x16000 = 256000000 pixels"):
+        list(frames(item, tmp_path, max_frames=1))
+    assert not decoded
+
+
+def test_video_frames_are_streamed_not_held(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # every frame handed out is dropped once both detectors read it: at most the first
+    # (kept for the size and the hint), the current one and the one before stay alive
+    alive: list[weakref.ref[Any]] = []
+    peak = 0
+
+    def streamed(*_args: object) -> Iterator[Any]:
+        nonlocal peak
+        for k in range(12):
+            gc.collect()
+            peak = max(peak, sum(ref() is not None for ref in alive))
+            image = render_markers(W, H, [(2, square(100 + 5 * k, 100, 90))])
+            alive.append(weakref.ref(image))
+            yield image
+
+    monkeypatch.setattr(dataset, "frames", streamed)
+    item = Item("clip", "video", "DICT_4X4_50", {2: 1})
+    report = evaluate([item], tmp_path, Settings())
+    assert report["items"][0]["service"]["found"] == 12
+    assert peak <= 3, peak
+
+
+def test_init_writes_a_manifest_to_fill_in_and_never_overwrites(tmp_path: Path) -> None:
+    write_still(tmp_path, "desk.png", [(3, 120), (7, 100)])
+    write_still(tmp_path, "empty.jpg", [])
+    sequence = tmp_path / "walk"
+    sequence.mkdir()
+    for k in range(3):
+        write_still(sequence, f"{k:03d}.png", [(5, 90)])
+    (tmp_path / "notes.txt").write_text("not a picture", encoding="utf-8")
+    run = bench("--init", str(tmp_path))
+    assert run.returncode == 0, run.stderr
+    manifest = tmp_path / "manifest.json"
+    assert str(manifest) in run.stdout
+    written = json.loads(manifest.read_text(encoding="utf-8"))
+    assert [(i["name"], i["kind"]) for i in written["items"]] == [
+        ("desk", "image"),
+        ("empty", "image"),
+        ("walk", "sequence"),
+    ]
+    assert all(i["markers"] == {"<id>": 1} for i in written["items"])
+    # never overwritten
+    before = manifest.read_bytes()
+    assert "already exists" in one_line_error(bench("--init", str(tmp_path)))
+    assert manifest.read_bytes() == before
+    # left unfilled, the bench says which field of which item to fill in
+    line = one_line_error(bench(str(manifest)))
+    assert "item 0 (desk): field markers: '<id>' is not a marker id" in line
+    # filled in: the bench reads the folder itself (no data/ beside the manifest)
+    fill = {"desk": {"3": 1, "7": 1}, "empty": {}, "walk": {"5": 1}}
+    for item in written["items"]:
+        item["markers"] = fill[item["name"]]
+    manifest.write_text(json.dumps(written), encoding="utf-8")
+    out, plot = tmp_path / "r.json", tmp_path / "plot.png"
+    run = bench(str(manifest), "--json", str(out), "--plot", str(plot))
+    assert run.returncode == 0, run.stdout + run.stderr
+    report = json.loads(out.read_text(encoding="utf-8"))
+    assert report["all"]["service"]["found"] == 2 + 3
+    assert "--dataset needs a MANIFEST" in one_line_error(
+        subprocess.run(
+            cli_command("bench", "--dataset"), capture_output=True, text=True, check=False
+        )
+    )
+
+
+def test_the_plot_has_a_row_per_item_in_both_colours(tmp_path: Path) -> None:
+    write_still(tmp_path, "one.png", [(3, 120)])
+    write_still(tmp_path, "two.png", [(3, 120), (7, 100)])
+    write_still(tmp_path, "five.png", [(4, 120)], dictionary="DICT_5X5_100")
+    write_still(tmp_path, "blank.png", [])
+    manifest = manifest_in(
+        tmp_path,
+        labelled("one", "image", {"3": 1}),
+        labelled("two", "image", {"3": 1, "7": 1}),
+        {**labelled("five", "image", {"4": 1}), "dictionary": "DICT_5X5_100"},
+        labelled("blank", "image", {}),  # read in both dictionaries, drawn as one row
+    )
+    plot = tmp_path / "sub" / "plot.png"
+    run = bench(str(manifest), "--plot", str(plot))
+    assert run.returncode == 0, run.stderr
+    image = cv2.imread(str(plot))
+    assert image is not None
+    for colour in (OPENCV_COLOUR, SERVICE_COLOUR):
+        assert np.all(image == colour, axis=2).any(), colour
+    # one row per item, then the size panel
+    assert image.shape[0] == 80 + 26 * 4 + 60 + 26 * len(BUCKETS) * 2
+
+
+def test_hints_say_which_family_or_flip_would_have_found_something(tmp_path: Path) -> None:
+    # a 6X6 marker labelled as 4X4, and a 4X4 marker stored mirrored but not marked so
+    write_still(tmp_path, "six.png", [(4, 160)], dictionary="DICT_6X6_250")
+    shown = render_markers(W, H, [(3, square(200, 150, 160))])
+    cv2.imwrite(str(tmp_path / "flip.png"), cv2.flip(cv2.cvtColor(shown, cv2.COLOR_BGRA2BGR), 1))
+    manifest = manifest_in(
+        tmp_path, labelled("six", "image", {"4": 1}), labelled("flip", "image", {"3": 1})
+    )
+    out = tmp_path / "r.json"
+    run = bench(str(manifest), "--json", str(out))
+    assert run.returncode == 0, run.stderr  # OpenCV found nothing either: nothing lost
+    hints = {i["name"]: i["hint"] for i in json.loads(out.read_text(encoding="utf-8"))["items"]}
+    assert "DICT_6X6_1000 finds ids 4" in hints["six"]
+    assert "DICT_4X4_1000 flipped left to right finds ids 3" in hints["flip"]
+    assert "six (DICT_4X4_50): " + hints["six"] in run.stdout
+    # an item where something is found has no hint
+    write_still(tmp_path, "fine.png", [(3, 120)])
+    assert nothing_found_hint(
+        Item("x", "image", "DICT_4X4_50", {3: 1}), np.zeros((8, 8, 4), np.uint8)
+    ).startswith("no family")
+
+
+def test_exit_rules_false_ids_and_lost_tags(tmp_path: Path) -> None:
+    # a sure still with a 30 px marker nobody labelled beside a labelled 150 px one
+    write_still(tmp_path, "desk.png", [(3, 150), (9, 30)])
+    sure = labelled("desk", "image", {"3": 1})
+    out = tmp_path / "r.json"
+
+    def run(item: dict[str, Any], *args: str) -> tuple[int, dict[str, Any], str]:
+        result = bench(str(manifest_in(tmp_path, item)), "--json", str(out), *args)
+        assert result.returncode in (0, 1), result.stderr
+        return result.returncode, json.loads(out.read_text(encoding="utf-8")), result.stdout
+
+    code, report, text = run(sure)
+    assert code == 1  # the service reports the unlabelled id on a sure positive
+    (failed,) = [g for g in report["goals"] if not g["pass"]]
+    assert failed["goal"] == "sure positives: unlabelled ids (service)"
+    assert "desk DICT_4X4_50 (1/1)" in failed["note"]
+    # the same labels, unsure: the extra id is reported, not failed
+    code, report, _ = run({**sure, "unsure": True})
+    assert code == 0
+    assert report["items"][0]["service"]["false_ids"] == 1
+    # a service that drops the small marker reports no false id where OpenCV reports one: a win
+    veto = tmp_path / "veto.toml"
+    veto.write_text("min_tag_side_px = 60\n", encoding="utf-8")
+    code, report, text = run(sure, "--settings", str(veto))
+    assert code == 0, [g for g in report["goals"] if not g["pass"]]
+    item = report["items"][0]
+    assert (item["opencv"]["false_ids"], item["service"]["false_ids"]) == (1, 0)
+    assert "1/0" in text
+    # a service that drops every tag loses the one OpenCV finds, id by id
+    blind = tmp_path / "blind.toml"
+    blind.write_text("min_tag_side_px = 1000\n", encoding="utf-8")
+    code, report, _ = run(sure, "--settings", str(blind))
+    assert code == 1
+    lost = next(g for g in report["goals"] if g["goal"].startswith("every tag OpenCV"))
+    assert (lost["value"], lost["pass"]) == (1, False)
+    assert "desk id 3" in lost["note"]
+    assert report["items"][0]["service"]["missed"] == {"3": 1}

@@ -7,7 +7,13 @@ from typing import Any
 import pytest
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench.goals import CENTRE_ERROR_PX, goals, own_cost_ms
+from zenoh_perception.bench.goals import (
+    CENTRE_ERROR_PX,
+    dataset_goals,
+    goals,
+    lost_tags,
+    own_cost_ms,
+)
 
 
 def _verdicts(rows: list[dict[str, Any]]) -> dict[str, bool]:
@@ -69,3 +75,39 @@ def test_a_set_where_the_service_does_worse_fails() -> None:
 def test_own_cost_is_end_to_end_minus_the_floor() -> None:
     entry = {"tracking": {"mean_ms": 9.5}, "floor": {"mean_ms": 1.5}}
     assert own_cost_ms(entry, "tracking", "mean_ms") == 8.0
+
+
+def _item(name: str, opencv: dict[str, int], service: dict[str, int]) -> dict[str, Any]:
+    def summary(found: dict[str, int]) -> dict[str, Any]:
+        return {
+            "found": sum(found.values()),
+            "found_ids": found,
+            "labelled": 4,
+            "share_found": sum(found.values()) / 4,
+            "false_ids": 0,
+            "unverified": 0,
+            "frames": 1,
+        }
+
+    return {
+        "name": name,
+        "kind": "image",
+        "dictionary": "DICT_4X4_50",
+        "negative": False,
+        "unsure": False,
+        "opencv": summary(opencv),
+        "service": summary(service),
+    }
+
+
+def test_a_tag_lost_against_opencv_fails_id_by_id() -> None:
+    # the same count found, but id 7 that OpenCV finds is lost: a failure
+    swapped = _item("desk", {"3": 1, "7": 1}, {"3": 1, "9": 1})
+    assert lost_tags(swapped) == {"7": 1}
+    assert lost_tags(_item("ok", {"3": 1}, {"3": 1, "7": 1})) == {}
+    report = {"groups": {}, "items": [swapped], "settings": {"detector": "tracking"}}
+    (lost, sure) = dataset_goals(report)
+    assert (lost["value"], lost["pass"]) == (1, False)
+    assert lost["note"] == "lost on desk id 7"
+    assert lost["labels"] == "service 2/4 (50.0 %), OpenCV 2/4 (50.0 %)"
+    assert sure["goal"] == "sure positives: unlabelled ids (service)" and sure["pass"]

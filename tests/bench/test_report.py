@@ -12,6 +12,8 @@ from tests.bench.conftest import BenchRun
 from zenoh_perception.bench.dataset import evaluate, load_manifest
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
 from zenoh_perception.bench.report import fmt, format_dataset_report, format_report, table
+from zenoh_perception.bench.runners import PAIR
+from zenoh_perception.bench.scoring import size_bucket
 from zenoh_perception.settings import Settings
 
 
@@ -121,26 +123,51 @@ def test_every_goal_has_its_row_and_verdict(quick: BenchRun) -> None:
         ]
 
 
+def _side(report_row: dict[str, Any], key: str) -> str:
+    return f"{report_row['opencv'][key]}/{report_row['service'][key]}"
+
+
 def test_the_dataset_report_has_a_row_per_group_item_and_goal(corpus: Path) -> None:
     items = load_manifest(corpus / "manifest.json")
     report = evaluate(items, corpus / "data", Settings())
     text = format_dataset_report(report)
-    for name, group in report["groups"].items():
-        opencv, service = group["opencv"], group["service"]
-        assert row(text, name)[1:5] == [
-            str(opencv["frames"]),
-            str(opencv["labelled"]),
-            str(opencv["found"]),
-            str(opencv["false_ids"]),
-        ]
-        assert row(text, name)[7:9] == [str(service["found"]), str(service["false_ids"])]
+    for name, group in [*report["groups"].items(), ("all", report["all"])]:
+        cells = row(text, name)
+        assert cells[1:3] == [str(group["opencv"]["frames"]), str(group["opencv"]["labelled"])]
+        # OpenCV's figure / the service's, side by side
+        assert cells[3] == _side(group, "found")
+        assert cells[5] == _side(group, "false_ids")
+        assert cells[6] == _side(group, "unverified")
+    for name, entry in report["dictionaries"].items():
+        assert row(text, name)[5] == _side(entry, "false_ids")
     for item in report["items"]:
+        if item["negative"]:
+            continue
         cells = row(text, item["name"], item["kind"], item["dictionary"])
-        assert cells[6] == f"{item['opencv']['found']}/{item['opencv']['false_ids']}"
-        assert cells[8] == f"{item['service']['found']}/{item['service']['false_ids']}"
+        assert cells[6] == _side(item, "found")
+        assert cells[8] == _side(item, "false_ids")
+        assert cells[9] == _side(item, "unverified")
+    unknown = row(text, "unknown", "image", "DICT_4X4_50")
+    assert unknown[7] == "100.0%/100.0%"
+    assert unknown[9] == "1/1"  # the unreadable marker's id: unverified, shown
+    # a negative, read in both dictionaries of the manifest, in one row: its false ids summed
+    negative = row(text, "n-empty (negative)", "image", "2 dictionaries")
+    false = [sum(i[w]["false_ids"] for i in report["items"] if i["negative"]) for w in PAIR]
+    assert negative[8] == f"{false[0]}/{false[1]}" == "1/1"
+    assert negative[-2:] == ["ids 1", "ids 1"]  # the unexpected id, OpenCV's and the service's
     for goal in report["goals"]:
-        assert row(text, goal["goal"])[1:4] == [
+        assert row(text, goal["goal"])[1:5] == [
             str(goal["value"]),
             goal["threshold"],
             "PASS" if goal["pass"] else "FAIL",
+            goal["labels"],
         ]
+
+
+def test_false_ids_by_size_stand_beside_each_other(corpus: Path) -> None:
+    items = [i for i in load_manifest(corpus / "manifest.json") if i.name == "n-empty"]
+    report = evaluate(items, corpus / "data", Settings())
+    text = format_dataset_report(report)
+    bucket = size_bucket(80.0)  # the unlabelled 80 px marker
+    assert row(text, bucket)[3] == "1/1"
+    assert report["all"]["service"]["false_buckets"][bucket] == 1

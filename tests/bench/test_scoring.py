@@ -90,3 +90,27 @@ def test_rounded_is_a_float_of_three_decimals() -> None:
     value = rounded(np.float64(1.23456))
     assert value == 1.235
     assert type(value) is float
+
+
+def _at(tag: int, side: float) -> Detection:
+    return Detection(tag, square(10, 10, side).astype(np.float32))
+
+
+def test_a_score_keeps_missed_ids_and_false_ids_by_size() -> None:
+    labels = Item("x", "image", "DICT_4X4_50", {3: 2, 7: 1})
+    s = Score()
+    s.add(labels, [_at(3, 100.0), _at(9, 30.0)], 1.0)
+    s.add(labels, [_at(7, 100.0), _at(3, 100.0), _at(3, 100.0)], 1.0)
+    assert s.missed == {3: 1, 7: 1}
+    assert s.false_buckets[size_bucket(30.0)] == 1
+    summary = s.summary()
+    assert summary["missed"] == {"3": 1, "7": 1}
+    assert summary["found_ids"] == {"3": 3, "7": 1}
+    assert summary["share_found"] == round(4 / 6, 4)
+    assert summary["false_buckets"][size_bucket(30.0)] == 1
+    pooled = Score()
+    pooled.extend(s)
+    pooled.extend(s)
+    assert pooled.missed == {3: 2, 7: 2}
+    assert pooled.false_buckets[size_bucket(30.0)] == 2
+    assert Score().summary()["share_found"] is None

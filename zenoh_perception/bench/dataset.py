@@ -1,9 +1,10 @@
 """``zenoh-perception bench --dataset MANIFEST``: the service's detector against OpenCV's default
 detector on labelled pictures and videos (a camera's own, or the project's real corpus).
 
-The manifest (``corpus/README.md`` describes it) names each item (a still, a video file or a
-sequence of frames), its dictionary and the ids a person read on it. Every frame is turned
-into the BGRA image a camera delivers and run through the two
+The manifest (``docs/dataset.md`` describes it; ``--init FOLDER`` writes one to fill in) names
+each item (a still, a video file or a sequence of frames), its dictionary and the ids a person
+read on it. Every frame, read one at a time, is turned into the BGRA image a camera delivers
+and run through the two
 :mod:`~zenoh_perception.bench.runners` of :data:`~zenoh_perception.bench.runners.PAIR`:
 
 - ``opencv``: OpenCV's default detector as a user would run it, timed with its conversion;
@@ -13,6 +14,8 @@ into the BGRA image a camera delivers and run through the two
 
 Each is scored against the labels (:class:`~zenoh_perception.bench.scoring.Score`; an item
 with no marker is a negative: every id on it is false, in every dictionary the manifest uses).
+On an item where neither found anything, OpenCV's default tries the other families and the
+flipped picture (:func:`nothing_found_hint`).
 With ``--e2e`` each video also goes, frame by frame in lockstep, through service processes
 (``zenoh-perception run``, default and ``--detector opencv``) and through the transport floor
 (:mod:`~zenoh_perception.bench.e2e`), as one stream per video. The verdicts are
@@ -25,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import stat
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -37,22 +41,41 @@ import numpy.typing as npt
 
 from zenoh_perception.bench.e2e import lockstep_images, record_detections
 from zenoh_perception.bench.goals import dataset_goals
+from zenoh_perception.bench.plot import plot_dataset
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.report import format_dataset_report
-from zenoh_perception.bench.runners import PAIR, Runner, pair, rotation
+from zenoh_perception.bench.runners import PAIR, Baseline, Runner, pair, rotation
 from zenoh_perception.bench.scoring import Score, rounded
+from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import dictionary_name
-from zenoh_perception.errors import PerceptionError
+from zenoh_perception.errors import PerceptionError, SettingsError
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.image_header import image_header_size
 
 Image = npt.NDArray[np.uint8]
 
 KINDS: Final = ("image", "video", "sequence")
+#: A manifest larger than this is refused before it is read (the corpus's is about 100 KB).
+MANIFEST_MAX_BYTES: Final = 16 * 1024 * 1024
+#: Most markers of one id, or unreadable ones, a manifest may state on one item.
+MAX_COUNT: Final = 10_000
+#: Fields an item must have; every other one has a default (docs/dataset.md).
+REQUIRED: Final = ("name", "kind", "dictionary", "markers")
+#: What ``--init`` lists: pictures (a still each), videos, and folders of pictures (sequences).
+PICTURES: Final = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp"})
+VIDEOS: Final = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v"})
+#: The placeholder ``--init`` writes for the ids to fill in; loading refuses it.
+ID_PLACEHOLDER: Final = "<id>"
 
 
 class DatasetError(PerceptionError):
-    """The manifest is malformed, or an item's file is missing or unreadable."""
+    """The manifest is malformed, or an item's file is missing, unreadable or too large."""
+
+
+class TooLargeError(DatasetError):
+    """An item's picture or frame has more pixels than ``max_frame_pixels``: the service
+    would refuse it, and the bench does not decode it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,58 +97,163 @@ class Item:
         return not self.markers and self.unknown_markers == 0
 
 
+def _shown(value: Any) -> str:
+    """``value`` for a one-line message: repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class _Fields:
+    """Reads one item's fields; every mistake is one line naming the item and the field."""
+
+    def __init__(self, raw: dict[str, Any], where: str) -> None:
+        self.raw = raw
+        self.where = where
+
+    def fail(self, key: str, problem: str) -> DatasetError:
+        return DatasetError(f"{self.where}: field {key}: {problem}")
+
+    def text(self, key: str, default: str | None = None) -> str:
+        if key not in self.raw:
+            if default is None:
+                raise self.fail(key, "required (docs/dataset.md lists the fields)")
+            return default
+        value = self.raw[key]
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"must be a non-empty string, not {_shown(value)}")
+        return value
+
+    def flag(self, key: str) -> bool:
+        value = self.raw.get(key, False)
+        if not isinstance(value, bool):
+            raise self.fail(key, f"must be true or false, not {_shown(value)}")
+        return value
+
+    def count(self, key: str, value: Any, low: int) -> int:
+        # bool is an int to Python, 1e400 a float (inf) to json: both are refused here
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise self.fail(key, f"must be a whole number, not {_shown(value)}")
+        if not low <= value <= MAX_COUNT:
+            raise self.fail(key, f"must be between {low} and {MAX_COUNT}, not {_shown(value)}")
+        return value
+
+    def markers(self, ids: int, dictionary: str) -> dict[int, int]:
+        value = self.raw.get("markers", None)
+        if "markers" not in self.raw:
+            raise self.fail("markers", 'required: {"<id>": count, ...}, {} when there is none')
+        if not isinstance(value, dict):
+            raise self.fail("markers", f'must be a table {{"<id>": count}}, not {_shown(value)}')
+        out: dict[int, int] = {}
+        for key, count in value.items():
+            if not (key.isdecimal() and key.isascii() and len(key) <= 6):
+                raise self.fail(
+                    "markers",
+                    f'{_shown(key)} is not a marker id: write {{"3": 1}} for one marker of'
+                    " id 3, {} when the picture holds none",
+                )
+            tag = int(key)
+            if tag >= ids:
+                raise self.fail("markers", f"id {tag} is not in {dictionary} (ids 0-{ids - 1})")
+            out[tag] = self.count(f"markers {key}", count, 1)
+        return out
+
+
+def _dictionary_size(name: str) -> int:
+    return int(aruco_dictionary(name).bytesList.shape[0])
+
+
 def _item(raw: Any, index: int) -> Item:
     if not isinstance(raw, dict):
-        msg = f"item {index} is not a table"
+        msg = f"item {index}: must be a table {{...}}, not {_shown(raw)}"
+        raise DatasetError(msg)
+    fields = _Fields(raw, f"item {index}")
+    name = fields.text("name")
+    if (
+        "/" in name
+        or "\\" in name
+        or name.startswith(".")
+        or len(name) > 200
+        or not name.isprintable()
+    ):
+        raise fields.fail(
+            "name", f"must be a plain file name without its extension, not {_shown(name)}"
+        )
+    fields.where = f"item {index} ({name})"
+    kind = fields.text("kind")
+    if kind not in KINDS:
+        raise fields.fail("kind", f"must be one of {', '.join(KINDS)}, not {_shown(kind)}")
+    try:
+        dictionary = dictionary_name(fields.text("dictionary"))
+    except SettingsError as err:
+        raise fields.fail("dictionary", str(err)) from err
+    conditions = raw.get("conditions", [])
+    if not isinstance(conditions, list) or not all(isinstance(c, str) for c in conditions):
+        raise fields.fail("conditions", f"must be a list of words, not {_shown(conditions)}")
+    return Item(
+        name=name,
+        kind=kind,
+        dictionary=dictionary,
+        markers=fields.markers(_dictionary_size(dictionary), dictionary),
+        unknown_markers=fields.count("unknown_markers", raw.get("unknown_markers", 0), 0),
+        unsure=fields.flag("unsure"),
+        camera=fields.text("camera", "unknown"),
+        conditions=tuple(conditions),
+        mirrored=fields.flag("mirrored"),
+    )
+
+
+def _not_a_number(word: str) -> Any:
+    msg = f"{word} is not a number a manifest may hold"
+    raise ValueError(msg)
+
+
+def _read_manifest(path: Path) -> Any:
+    try:
+        status = path.stat()
+    except OSError as err:
+        msg = f"cannot read manifest {path}: {err.strerror}"
+        raise DatasetError(msg) from err
+    # /dev/zero, a FIFO or a huge file would block or fill memory when read whole
+    if not stat.S_ISREG(status.st_mode):
+        msg = f"manifest {path} is not a regular file"
+        raise DatasetError(msg)
+    if status.st_size > MANIFEST_MAX_BYTES:
+        msg = (
+            f"manifest {path} is {status.st_size} bytes, more than the {MANIFEST_MAX_BYTES} allowed"
+        )
         raise DatasetError(msg)
     try:
-        name = str(raw["name"])
-        kind = str(raw["kind"])
-        markers = {int(k): int(v) for k, v in dict(raw.get("markers", {})).items()}
-        mirrored = raw.get("mirrored", False)
-        if not isinstance(mirrored, bool):
-            msg = f"mirrored must be true or false, not {mirrored!r}"
-            raise ValueError(msg)
-        item = Item(
-            name=name,
-            kind=kind,
-            dictionary=dictionary_name(str(raw["dictionary"])),
-            markers=markers,
-            unknown_markers=int(raw.get("unknown_markers", 0)),
-            unsure=bool(raw.get("unsure", False)),
-            camera=str(raw.get("camera", "unknown")),
-            conditions=tuple(str(c) for c in raw.get("conditions", ())),
-            mirrored=mirrored,
-        )
-    except (KeyError, TypeError, ValueError, PerceptionError) as err:
-        msg = f"item {index} ({raw.get('name', '?')}): {err}"
+        with path.open("rb") as file:
+            data = file.read(MANIFEST_MAX_BYTES + 1)
+        if len(data) > MANIFEST_MAX_BYTES:
+            msg = f"manifest {path} grew past {MANIFEST_MAX_BYTES} bytes while read"
+            raise DatasetError(msg)
+        return json.loads(data.decode("utf-8"), parse_constant=_not_a_number)
+    except RecursionError as err:
+        msg = f"cannot read manifest {path}: JSON nested too deep"
         raise DatasetError(msg) from err
-    if kind not in KINDS:
-        msg = f"item {name}: kind must be one of {', '.join(KINDS)}, not {kind!r}"
-        raise DatasetError(msg)
-    if any(c < 1 for c in markers.values()) or item.unknown_markers < 0:
-        msg = f"item {name}: marker counts must be positive"
-        raise DatasetError(msg)
-    if "/" in name or name.startswith("."):
-        msg = f"item {name}: a name is a plain file name"
-        raise DatasetError(msg)
-    return item
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        text = " ".join(str(err).split())  # one line
+        msg = f"cannot read manifest {path}: {text}"
+        raise DatasetError(msg) from err
 
 
 def load_manifest(path: Path) -> list[Item]:
     """The items of the manifest at ``path``.
 
     Raises:
-        DatasetError: unreadable or malformed manifest.
+        DatasetError: unreadable or malformed manifest (one line naming the item and field).
 
     """
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        msg = f"cannot read manifest {path}: {err}"
-        raise DatasetError(msg) from err
+    data = _read_manifest(path)
     if not isinstance(data, dict) or not isinstance(data.get("items"), list):
-        msg = f"{path}: expected {{'format': 1, 'items': [...]}}"
+        msg = f'{path}: expected {{"format": 1, "items": [...]}} (docs/dataset.md)'
+        raise DatasetError(msg)
+    if data.get("format", 1) != 1:
+        msg = f"{path}: field format: this bench reads format 1, not {_shown(data['format'])}"
+        raise DatasetError(msg)
+    if not data["items"]:
+        msg = f"{path}: no items (bench --dataset --init FOLDER lists a folder's pictures)"
         raise DatasetError(msg)
     items = [_item(raw, i) for i, raw in enumerate(data["items"])]
     names = Counter(item.name for item in items)
@@ -136,10 +264,36 @@ def load_manifest(path: Path) -> list[Item]:
     return items
 
 
+def data_folder(manifest: Path, data: Path | None) -> Path:
+    """Where the items' files are: ``data`` if given, else ``data/`` beside the manifest if
+    there is one, else the manifest's own folder (what ``--init`` writes for).
+
+    Raises:
+        DatasetError: that folder does not exist.
+
+    """
+    folder = data
+    if folder is None:
+        beside = manifest.parent / "data"
+        folder = beside if beside.is_dir() else manifest.parent
+    if not folder.is_dir():
+        msg = f"data folder {folder} does not exist (pass --data FOLDER: your pictures' folder)"
+        raise DatasetError(msg)
+    return folder
+
+
 def _file(data: Path, item: Item) -> Path:
-    found = sorted(p for p in data.glob(f"{item.name}.*") if p.is_file())
+    # exact names, not a glob: a name is the user's text, not a pattern
+    try:
+        found = sorted(p for p in data.iterdir() if p.stem == item.name and p.is_file())
+    except OSError as err:
+        msg = f"item {item.name}: cannot list {data}: {err.strerror}"
+        raise DatasetError(msg) from err
     if not found:
-        msg = f"item {item.name}: no file {data / item.name}.* (rebuild the data folder)"
+        msg = (
+            f"item {item.name}: no file {item.name}.<ext> in {data} (put the picture there,"
+            " or pass --data with the folder that holds it)"
+        )
         raise DatasetError(msg)
     return found[0]
 
@@ -150,50 +304,85 @@ def _bgra(image: Any) -> Image:
     return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2BGRA), dtype=np.uint8)
 
 
-def _read_image(path: Path) -> Image:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+def _too_large(path: Path, width: int, height: int, max_pixels: int) -> TooLargeError:
+    return TooLargeError(
+        f"{path}: {width}x{height} = {width * height} pixels, more than max_frame_pixels ="
+        f" {max_pixels} (raise it with --settings to bench this picture)"
+    )
+
+
+def _read_image(path: Path, max_pixels: int) -> Image:
+    """A picture as BGRA, refused before it is decoded when its header declares more than
+    ``max_pixels`` pixels (PNG and JPEG; other formats once decoded)."""
+    try:
+        size = path.stat().st_size
+        # no picture of max_pixels needs more than 8 bytes a pixel (16-bit RGBA, stored)
+        if size > 8 * max_pixels + (1 << 20):
+            msg = f"{path}: {size} bytes, too large for max_frame_pixels = {max_pixels}"
+            raise TooLargeError(msg)
+        data = path.read_bytes()
+    except OSError as err:
+        msg = f"cannot read image {path}: {err.strerror}"
+        raise DatasetError(msg) from err
+    declared = image_header_size(data)
+    if declared is not None and declared[0] * declared[1] > max_pixels:
+        raise _too_large(path, *declared, max_pixels)
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         msg = f"cannot read image {path}"
         raise DatasetError(msg)
+    if image.shape[0] * image.shape[1] > max_pixels:
+        raise _too_large(path, image.shape[1], image.shape[0], max_pixels)
     return _bgra(image)
 
 
-def frames(item: Item, data: Path, max_frames: int) -> Iterator[Image]:
-    """The item's frames as BGRA images (a video: at most ``max_frames``), flipped back left
-    to right when the item was stored mirrored.
+DEFAULT_MAX_PIXELS: Final = Settings().max_frame_pixels
+
+
+def frames(
+    item: Item, data: Path, max_frames: int, max_pixels: int = DEFAULT_MAX_PIXELS
+) -> Iterator[Image]:
+    """The item's frames as BGRA images, one at a time (a video: at most ``max_frames``),
+    flipped back left to right when the item was stored mirrored.
 
     Raises:
-        DatasetError: missing or unreadable file.
+        DatasetError: missing or unreadable file, or a frame of more than ``max_pixels``.
 
     """
-    for image in _stored_frames(item, data, max_frames):
+    for image in _stored_frames(item, data, max_frames, max_pixels):
         yield np.asarray(cv2.flip(image, 1), np.uint8) if item.mirrored else image
 
 
-def _stored_frames(item: Item, data: Path, max_frames: int) -> Iterator[Image]:
+def _stored_frames(item: Item, data: Path, max_frames: int, max_pixels: int) -> Iterator[Image]:
     if item.kind == "sequence":
         folder = data / item.name
         paths = sorted(p for p in folder.iterdir() if p.is_file()) if folder.is_dir() else []
         if not paths:
-            msg = f"item {item.name}: no frames in {folder}"
+            msg = f"item {item.name}: no frames in {folder} (a sequence is a folder of pictures)"
             raise DatasetError(msg)
         for path in paths[:max_frames]:
-            yield _read_image(path)
+            yield _read_image(path, max_pixels)
         return
     path = _file(data, item)
     if item.kind == "image":
-        yield _read_image(path)
+        yield _read_image(path, max_pixels)
         return
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         msg = f"cannot open video {path}"
         raise DatasetError(msg)
     try:
+        width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
+        height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        if width * height > max_pixels:
+            raise _too_large(path, width, height, max_pixels)
         count = 0
         while count < max_frames:
             ok, image = capture.read()
             if not ok:
                 break
+            if image.shape[0] * image.shape[1] > max_pixels:
+                raise _too_large(path, image.shape[1], image.shape[0], max_pixels)
             count += 1
             yield _bgra(image)
     finally:
@@ -216,15 +405,6 @@ class _Streams:
         return self.runners[key]
 
 
-def _run_frames(
-    item: Item, images: Sequence[Image], runners: dict[str, Runner], scores: dict[str, Score]
-) -> None:
-    for index, image in enumerate(images):
-        for who in rotation(PAIR, index):
-            detections, ms = runners[who].run(image)
-            scores[who].add(item, detections, ms)
-
-
 def evaluate(
     items: Sequence[Item],
     data: Path,
@@ -235,34 +415,124 @@ def evaluate(
     shm: bool = True,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Run both detectors over every item; the JSON-ready report (see the module doc)."""
+    """Run both detectors over every item; the JSON-ready report (see the module doc).
+
+    Frames are read one at a time and dropped once both detectors saw them (with ``e2e``, a
+    video's frames are kept for its lockstep replay).
+    """
     streams = _Streams(settings)
     dictionaries = sorted({item.dictionary for item in items if not item.negative})
     dictionaries = dictionaries or ["DICT_4X4_50"]
     rows: list[dict[str, Any]] = []
+    refused: list[dict[str, str]] = []
     for item in items:
-        videos = item.kind != "image"
-        images = list(frames(item, data, max_video_frames))
-        tested = dictionaries if item.negative else [item.dictionary]
+        try:
+            rows += _evaluate_item(
+                item,
+                data,
+                streams,
+                dictionaries=dictionaries,
+                max_video_frames=max_video_frames,
+                e2e=e2e,
+                shm=shm,
+                progress=progress,
+            )
+        except TooLargeError as err:
+            refused.append({"name": item.name, "reason": str(err)})
+        tick(progress, item.name)
+    if not rows:
+        msg = f"every item was refused: {refused[0]['reason']}" if refused else "no items"
+        raise DatasetError(msg)
+    return _report(rows, refused, settings, max_video_frames)
+
+
+def _evaluate_item(
+    item: Item,
+    data: Path,
+    streams: _Streams,
+    *,
+    dictionaries: Sequence[str],
+    max_video_frames: int,
+    e2e: bool,
+    shm: bool,
+    progress: Progress | None,
+) -> list[dict[str, Any]]:
+    """The item's rows: one per dictionary it is read in."""
+    rows: list[dict[str, Any]] = []
+    videos = item.kind != "image"
+    tested = dictionaries if item.negative else [item.dictionary]
+    scores = {d: {who: Score() for who in PAIR} for d in tested}
+    kept: list[Image] | None = [] if e2e and videos and not item.negative else None
+    first: Image | None = None
+    for index, image in enumerate(
+        frames(item, data, max_video_frames, streams.settings.max_frame_pixels)
+    ):
+        if first is None:
+            first = image
         for dictionary in tested:
             key = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
-            scores = {who: Score() for who in PAIR}
-            _run_frames(item, images, streams.pair(key, dictionary), scores)
-            row: dict[str, Any] = {
-                "name": item.name,
-                "kind": item.kind,
-                "dictionary": dictionary,
-                "negative": item.negative,
-                "unsure": item.unsure,
-                "camera": item.camera,
-                "size": [int(images[0].shape[1]), int(images[0].shape[0])],
-                **{who: scores[who] for who in PAIR},
-            }
-            if e2e and videos and not item.negative:
-                row["e2e"] = _end_to_end(item, images, shm, progress)
-            rows.append(row)
-        tick(progress, item.name)
-    return _report(rows, settings, max_video_frames)
+            runners = streams.pair(key, dictionary)
+            for who in rotation(PAIR, index):
+                detections, ms = runners[who].run(image)
+                scores[dictionary][who].add(item, detections, ms)
+        if kept is not None:
+            kept.append(image)
+    assert first is not None  # frames() raises on an item without any
+    for dictionary in tested:
+        row: dict[str, Any] = {
+            "name": item.name,
+            "kind": item.kind,
+            "dictionary": dictionary,
+            "negative": item.negative,
+            "unsure": item.unsure,
+            "camera": item.camera,
+            "size": [int(first.shape[1]), int(first.shape[0])],
+            **scores[dictionary],
+            "hint": None,
+        }
+        if not item.negative and all(scores[dictionary][w].found == 0 for w in PAIR):
+            unread = scores[dictionary]["service"].unverified == 0
+            row["hint"] = nothing_found_hint(item, first) if unread else None
+        if kept is not None:
+            row["e2e"] = _end_to_end(item, kept, shm, progress)
+        rows.append(row)
+    return rows
+
+
+#: The largest dictionary of each family, tried on an item where nothing was found.
+FAMILIES: Final = (
+    "DICT_4X4_1000",
+    "DICT_5X5_1000",
+    "DICT_6X6_1000",
+    "DICT_7X7_1000",
+    "DICT_ARUCO_ORIGINAL",
+    "DICT_ARUCO_MIP_36h12",
+    "DICT_APRILTAG_16h5",
+    "DICT_APRILTAG_25h9",
+    "DICT_APRILTAG_36h10",
+    "DICT_APRILTAG_36h11",
+)
+
+
+def nothing_found_hint(item: Item, image: Image) -> str:
+    """What OpenCV's default finds on ``image`` (an item's first frame, on which nothing
+    was found) in the other families and flipped left to right: a wrong dictionary or a
+    mirrored picture shows up here."""
+    found: list[str] = []
+    for flipped in (False, True):
+        picture = np.asarray(cv2.flip(image, 1), np.uint8) if flipped else image
+        for dictionary in FAMILIES:
+            if not flipped and dictionary == item.dictionary:
+                continue
+            detections, _ = Baseline(dictionary).run(picture)
+            if detections:
+                ids = sorted({d.tag_id for d in detections})
+                shown = ", ".join(str(i) for i in ids[:6]) + (", ..." if len(ids) > 6 else "")
+                how = " flipped left to right" if flipped else ""
+                found.append(f"{dictionary}{how} finds ids {shown}")
+    if not found:
+        return "no family finds a marker on the first frame, flipped or not"
+    return "; ".join(found[:3]) + ("; ..." if len(found) > 3 else "")
 
 
 def _end_to_end(
@@ -306,7 +576,9 @@ def _pool(rows: Sequence[dict[str, Any]]) -> dict[str, Score]:
     return pooled
 
 
-def _report(rows: list[dict[str, Any]], settings: Settings, max_frames: int) -> dict[str, Any]:
+def _report(
+    rows: list[dict[str, Any]], refused: list[dict[str, str]], settings: Settings, max_frames: int
+) -> dict[str, Any]:
     stills = [r for r in rows if r["kind"] == "image" and not r["negative"]]
     videos = [r for r in rows if r["kind"] != "image" and not r["negative"]]
     negatives = [r for r in rows if r["negative"]]
@@ -317,11 +589,29 @@ def _report(rows: list[dict[str, Any]], settings: Settings, max_frames: int) -> 
     }
     for dictionary in sorted({r["dictionary"] for r in stills}):
         groups[f"stills {dictionary}"] = _pool([r for r in stills if r["dictionary"] == dictionary])
+    # every item read in a dictionary, negatives included: where the false ids come from
+    by_dictionary = {
+        d: _pool([r for r in rows if r["dictionary"] == d])
+        for d in sorted({r["dictionary"] for r in rows})
+    }
+    everything = _pool(rows)
+
+    def summaries(pooled: dict[str, dict[str, Score]]) -> dict[str, Any]:
+        return {name: {who: s.summary() for who, s in g.items()} for name, g in pooled.items()}
+
     report: dict[str, Any] = {
-        "settings": {"detector": settings.detector, "full_scan_period": settings.full_scan_period},
+        "settings": {
+            "detector": settings.detector,
+            "full_scan_period": settings.full_scan_period,
+            "max_frame_pixels": settings.max_frame_pixels,
+        },
         "max_video_frames": max_frames,
         "items": [{**r, **{who: r[who].summary() for who in PAIR}} for r in rows],
-        "groups": {name: {who: s.summary() for who, s in g.items()} for name, g in groups.items()},
+        "groups": summaries(groups),
+        "dictionaries": summaries(by_dictionary),
+        "all": {who: s.summary() for who, s in everything.items()},
+        # items over max_frame_pixels, not decoded: the service would refuse their frames
+        "refused": refused,
     }
     report["goals"] = dataset_goals(report)
     return report
@@ -329,9 +619,15 @@ def _report(rows: list[dict[str, Any]], settings: Settings, max_frames: int) -> 
 
 def main(args: argparse.Namespace, settings: Settings) -> int:
     """Run the dataset bench from parsed ``bench`` arguments; 1 when a goal fails."""
-    manifest: Path = args.dataset
-    data: Path = args.data if args.data is not None else manifest.parent / "data"
+    if args.init is not None:
+        print(init_manifest(args.init))
+        return 0
+    if not args.dataset:  # ``bench --dataset`` with no manifest after it
+        msg = "--dataset needs a MANIFEST (or --init FOLDER to write one)"
+        raise DatasetError(msg)
+    manifest = Path(args.dataset)
     items = load_manifest(manifest)
+    data = data_folder(manifest, args.data)
     progress = Progress(len(items))
     # SIGTERM stops the bench through the finally blocks that stop its service processes
     with sigterm_exits():
@@ -351,7 +647,81 @@ def main(args: argparse.Namespace, settings: Settings) -> int:
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2, default=_plain) + "\n", encoding="utf-8")
+    if args.plot is not None:
+        plot_dataset(report, args.plot)
     return 0 if all(g["pass"] for g in report["goals"]) else 1
+
+
+def _template(name: str, kind: str) -> dict[str, Any]:
+    return {
+        "name": name,
+        "kind": kind,
+        "dictionary": "DICT_4X4_50",
+        "markers": {ID_PLACEHOLDER: 1},
+        "unknown_markers": 0,
+        "unsure": False,
+        "camera": "unknown",
+        "mirrored": False,
+        "conditions": [],
+        "notes": "",
+    }
+
+
+def init_manifest(folder: Path) -> str:
+    """Write ``folder/manifest.json`` listing the folder's pictures, videos and folders of
+    pictures, with the fields to fill in; what was written, as a line for the user.
+
+    Raises:
+        DatasetError: no such folder, nothing to list, or a manifest is already there.
+
+    """
+    if not folder.is_dir():
+        msg = f"--init {folder}: no such folder"
+        raise DatasetError(msg)
+    items: list[dict[str, Any]] = []
+    skipped: list[str] = []
+    names: set[str] = set()
+    for path in sorted(folder.iterdir()):
+        if path.name.startswith("."):
+            continue
+        suffix = path.suffix.lower()
+        if path.is_dir():
+            inside = [p for p in path.iterdir() if p.suffix.lower() in PICTURES and p.is_file()]
+            kind = "sequence" if inside else ""
+        elif path.is_file():
+            kind = "image" if suffix in PICTURES else "video" if suffix in VIDEOS else ""
+        else:
+            kind = ""
+        if not kind:
+            continue
+        name = path.name if kind == "sequence" else path.stem
+        if name in names:  # photo.jpg beside photo.png: the bench reads one file per name
+            skipped.append(path.name)
+            continue
+        names.add(name)
+        items.append(_template(name, kind))
+    if not items:
+        msg = f"--init {folder}: no picture, video or folder of pictures in it"
+        raise DatasetError(msg)
+    manifest = folder / "manifest.json"
+    text = json.dumps({"format": 1, "items": items}, indent=2) + "\n"
+    try:
+        with manifest.open("x", encoding="utf-8") as file:
+            file.write(text)
+    except FileExistsError as err:
+        msg = f"{manifest} already exists: edit it, or move it away to write a new one"
+        raise DatasetError(msg) from err
+    except OSError as err:
+        msg = f"cannot write {manifest}: {err.strerror}"
+        raise DatasetError(msg) from err
+    kinds = Counter(i["kind"] for i in items)
+    listed = ", ".join(f"{n} {k}{'s' if n > 1 else ''}" for k, n in sorted(kinds.items()))
+    note = f" (skipped, same name as another: {', '.join(skipped)})" if skipped else ""
+    return (
+        f"wrote {manifest}: {listed}{note}. Fill in each item's dictionary and markers"
+        f' ({{"<id>": count}}, {{}} when none; docs/dataset.md), then run'
+        f" zenoh-perception bench --dataset {manifest}"
+    )
 
 
 def _plain(value: Any) -> Any:

@@ -1,17 +1,21 @@
-"""A PNG of the generated bench's detection latency against resolution, drawn with OpenCV."""
+"""The benches' PNGs, drawn with OpenCV (no plotting library needed): the generated bench's
+detection latency against resolution, and the labelled-dataset bench's found and false ids
+per item and per marker size."""
 
 from __future__ import annotations
 
 import itertools
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.bench.framesets import RESOLUTIONS
+from zenoh_perception.bench.report import negatives_merged
+from zenoh_perception.bench.scoring import BUCKETS
 
 Image = npt.NDArray[np.uint8]
 
@@ -99,3 +103,87 @@ def _dashed(
         p = (round(a[0] + (b[0] - a[0]) * t0), round(a[1] + (b[1] - a[1]) * t0))
         q = (round(a[0] + (b[0] - a[0]) * t1), round(a[1] + (b[1] - a[1]) * t1))
         cv2.line(canvas, p, q, colour, 1, cv2.LINE_AA)
+
+
+#: The dataset plot's colours (BGR): OpenCV's default, the service.
+OPENCV_COLOUR: Final = (40, 40, 220)
+SERVICE_COLOUR: Final = (200, 110, 20)
+
+
+def plot_dataset(report: dict[str, Any], path: Path) -> None:
+    """PNG of the labelled-dataset bench: per item, the share of labelled markers found and
+    the false ids, OpenCV's default above the service; then the same per marker size."""
+    items = negatives_merged(report["items"])  # a negative: one row over its dictionaries
+    row_h, width, left, bar_w = 26, 1100, 360, 420
+    buckets_h = 60 + 26 * len(BUCKETS) * 2
+    height = 80 + row_h * len(items) + buckets_h
+    canvas = np.full((height, width, 3), 255, dtype=np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    black = (0, 0, 0)
+
+    def text(words: str, x: int, y: int, scale: float = 0.45) -> None:
+        cv2.putText(canvas, words, (x, y), font, scale, black, 1, cv2.LINE_AA)
+
+    text("Share of labelled markers found (bar) and false ids, per item", 20, 30, 0.65)
+    for k, (who, colour) in enumerate(
+        (("OpenCV default", OPENCV_COLOUR), ("service", SERVICE_COLOUR))
+    ):
+        cv2.rectangle(canvas, (20 + 200 * k, 45), (40 + 200 * k, 57), colour, -1)
+        text(who, 46 + 200 * k, 57)
+    y = 80
+    for item in items:
+        name = item["name"] if len(item["name"]) <= 44 else item["name"][:41] + "..."
+        text(f"{name} {item['dictionary'].removeprefix('DICT_')}", 20, y + 16, 0.4)
+        for k, (who, colour) in enumerate((("opencv", OPENCV_COLOUR), ("service", SERVICE_COLOUR))):
+            share = item[who]["share_found"]
+            top = y + 2 + 11 * k
+            cv2.rectangle(canvas, (left, top), (left + bar_w, top + 9), (235, 235, 235), -1)
+            if share is not None:
+                cv2.rectangle(
+                    canvas, (left, top), (left + round(bar_w * share), top + 9), colour, -1
+                )
+        summary = (
+            f"{_share(item['opencv'])} / {_share(item['service'])}  false"
+            f" {item['opencv']['false_ids']}/{item['service']['false_ids']}"
+        )
+        text(summary, left + bar_w + 15, y + 16, 0.4)
+        y += row_h
+    y += 40
+    text("Per marker size (mean side): found on stills and videos, and false ids", 20, y, 0.65)
+    y += 20
+    every = report["all"]
+    most = max(
+        1,
+        *(
+            every[w][key][b]
+            for w in ("opencv", "service")
+            for key in ("buckets", "false_buckets")
+            for b in BUCKETS
+        ),
+    )
+    for bucket in BUCKETS:
+        for key, word in (("buckets", "found"), ("false_buckets", "false")):
+            text(f"{bucket} {word}", 20, y + 16)
+            for k, (who, colour) in enumerate(
+                (("opencv", OPENCV_COLOUR), ("service", SERVICE_COLOUR))
+            ):
+                value = every[who][key][bucket]
+                top = y + 2 + 11 * k
+                cv2.rectangle(
+                    canvas, (left, top), (left + round(bar_w * value / most), top + 9), colour, -1
+                )
+            text(
+                f"{every['opencv'][key][bucket]} / {every['service'][key][bucket]}",
+                left + bar_w + 15,
+                y + 16,
+            )
+            y += row_h
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), canvas):
+        msg = f"cannot write {path}"
+        raise OSError(msg)
+
+
+def _share(summary: dict[str, Any]) -> str:
+    share = summary["share_found"]
+    return "-" if share is None else f"{100.0 * share:.0f}%"

@@ -190,61 +190,160 @@ def _throughput(runs: dict[str, Any]) -> str:
 
 
 def format_dataset_report(report: dict[str, Any]) -> str:
-    """The labelled-dataset bench's tables."""
-    parts = [_totals(report), _sizes(report), _items(report)]
+    """The labelled-dataset bench's tables: OpenCV's default and the service side by side
+    (``a/b`` is OpenCV's figure / the service's)."""
+    parts = [_totals(report), _dictionaries(report), _sizes(report), _items(report)]
+    hints = _hints(report)
+    if hints:
+        parts.append(hints)
+    if report.get("refused"):
+        parts.append(
+            "Refused (over max_frame_pixels: not decoded, the service would refuse these frames)\n"
+            + "\n".join(f"  {r['name']}: {r['reason']}" for r in report["refused"])
+        )
     e2e = _dataset_end_to_end(report)
     if e2e:
         parts.append(e2e)
-    parts.append(goals_table(report["goals"], str))
+    parts.append(_dataset_goals(report["goals"]))
     return "\n\n".join(parts)
 
 
+def _pct(summary: dict[str, Any]) -> str:
+    share = summary["share_found"]
+    return "-" if share is None else f"{100.0 * share:.1f}%"
+
+
+def _side(report_row: dict[str, Any], key: str) -> str:
+    """OpenCV's figure / the service's."""
+    return f"{report_row['opencv'][key]}/{report_row['service'][key]}"
+
+
+def _ids(counts: dict[str, int]) -> str:
+    """``{"7": 2, "3": 1}`` as ``ids 3, 7x2``; ``-`` for none."""
+    if not counts:
+        return "-"
+    shown = [
+        k if n == 1 else f"{k}x{n}" for k, n in sorted(counts.items(), key=lambda e: int(e[0]))
+    ]
+    return "ids " + ", ".join(shown[:6]) + (", ..." if len(shown) > 6 else "")
+
+
+_SIDE_HEADERS = ["found", "share o/s", "false o/s", "unverified o/s", "ms o/s"]
+
+
+def _side_cells(row: dict[str, Any]) -> list[str]:
+    return [
+        _side(row, "found"),
+        f"{_pct(row['opencv'])}/{_pct(row['service'])}",
+        _side(row, "false_ids"),
+        _side(row, "unverified"),
+        f"{fmt(row['opencv']['mean_ms'])}/{fmt(row['service']['mean_ms'])}",
+    ]
+
+
 def _totals(report: dict[str, Any]) -> str:
-    headers = ["group", "frames", "labelled"]
-    for who in PAIR:
-        headers += [f"{who} found", f"{who} false", f"{who} med ms", f"{who} mean ms"]
     rows = []
-    for name, group in report["groups"].items():
-        row = [name, str(group["opencv"]["frames"]), str(group["opencv"]["labelled"])]
-        for who in PAIR:
-            s = group[who]
-            row += [str(s["found"]), str(s["false_ids"]), fmt(s["median_ms"]), fmt(s["mean_ms"])]
-        rows.append(row)
-    return "Totals (found = labelled markers reported; on video, id-frames)\n" + table(
-        headers, rows
+    groups = {**report["groups"], "all": report["all"]}
+    for name, group in groups.items():
+        if group["opencv"]["frames"] == 0:
+            continue
+        rows.append(
+            [
+                name,
+                str(group["opencv"]["frames"]),
+                str(group["opencv"]["labelled"]),
+                *_side_cells(group),
+            ]
+        )
+    return (
+        "Totals (o/s = OpenCV default / service; found = labelled markers reported, on video"
+        " id-frames; false = ids the labels do not hold; unverified = ids of markers seen but"
+        " not read; ms = mean per frame)\n"
+        + table(["group", "frames", "labelled", *_SIDE_HEADERS], rows)
+    )
+
+
+def _dictionaries(report: dict[str, Any]) -> str:
+    rows = [
+        [name, str(d["opencv"]["frames"]), str(d["opencv"]["labelled"]), *_side_cells(d)]
+        for name, d in report["dictionaries"].items()
+    ]
+    return "By dictionary (every item read in it, negatives included)\n" + table(
+        ["dictionary", "frames", "labelled", *_SIDE_HEADERS], rows
     )
 
 
 def _sizes(report: dict[str, Any]) -> str:
     stills = report["groups"]["stills"]
+    videos = report["groups"]["videos"]
+    every = report["all"]
     rows = [
         [
             bucket,
-            str(stills["opencv"]["buckets"][bucket]),
-            str(stills["service"]["buckets"][bucket]),
+            f"{stills['opencv']['buckets'][bucket]}/{stills['service']['buckets'][bucket]}",
+            f"{videos['opencv']['buckets'][bucket]}/{videos['service']['buckets'][bucket]}",
+            f"{every['opencv']['false_buckets'][bucket]}/{every['service']['false_buckets'][bucket]}",
         ]
         for bucket in BUCKETS
     ]
-    return "Stills by marker size (mean side)\n" + table(
-        ["size", "opencv found", "service found"], rows
+    return "By marker size (mean side; o/s = OpenCV default / service)\n" + table(
+        ["size", "stills found o/s", "video id-frames found o/s", "false ids o/s (all)"], rows
     )
+
+
+def negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The items, each negative's rows (one per dictionary it was read in) as one."""
+    out: list[dict[str, Any]] = []
+    merged: dict[str, dict[str, Any]] = {}
+    for item in items:
+        if not item["negative"]:
+            out.append(item)
+            continue
+        if item["name"] not in merged:
+            merged[item["name"]] = {**item, "dictionaries": 0, "times": {w: [] for w in PAIR}}
+            merged[item["name"]].update({w: dict(item[w]) for w in PAIR})
+            out.append(merged[item["name"]])
+            for who in PAIR:
+                merged[item["name"]][who]["false_examples"] = {}
+                for key in ("false_ids", "unverified"):
+                    merged[item["name"]][who][key] = 0
+        entry = merged[item["name"]]
+        entry["dictionaries"] += 1
+        entry["dictionary"] = f"{entry['dictionaries']} dictionaries"
+        for who in PAIR:
+            into, row = entry[who], item[who]
+            into["false_ids"] += row["false_ids"]
+            into["unverified"] += row["unverified"]
+            examples = into["false_examples"]
+            for tag, n in row["false_examples"].items():
+                examples[tag] = examples.get(tag, 0) + n
+            if row["mean_ms"] is not None:
+                entry["times"][who].append(row["mean_ms"])
+            times = entry["times"][who]
+            into["mean_ms"] = sum(times) / len(times) if times else None
+    return out
 
 
 def _items(report: dict[str, Any]) -> str:
     rows = []
-    for item in report["items"]:
-        row = [
-            item["name"] + (" (unsure)" if item["unsure"] else ""),
-            item["kind"],
-            item["dictionary"],
-            f"{item['size'][0]}x{item['size'][1]}",
-            str(item["opencv"]["frames"]),
-            str(item["opencv"]["labelled"]),
-        ]
-        for who in PAIR:
-            s = item[who]
-            row += [f"{s['found']}/{s['false_ids']}", fmt(s["mean_ms"])]
-        rows.append(row)
+    for item in negatives_merged(report["items"]):
+        label = item["name"] + (" (unsure)" if item["unsure"] else "")
+        if item["negative"]:
+            label += " (negative)"
+        rows.append(
+            [
+                label,
+                item["kind"],
+                item["dictionary"],
+                f"{item['size'][0]}x{item['size'][1]}",
+                str(item["opencv"]["frames"]),
+                str(item["opencv"]["labelled"]),
+                *_side_cells(item),
+                _ids(item["service"]["missed"]),
+                _ids(item["opencv"]["false_examples"]),
+                _ids(item["service"]["false_examples"]),
+            ]
+        )
     headers = [
         "item",
         "kind",
@@ -252,12 +351,46 @@ def _items(report: dict[str, Any]) -> str:
         "size",
         "frames",
         "labelled",
-        "opencv",
-        "ms",
-        "service",
-        "ms",
+        *_SIDE_HEADERS,
+        "missed (service)",
+        "unexpected (opencv)",
+        "unexpected (service)",
     ]
-    return "Items (found/false ids, mean ms per frame)\n" + table(headers, rows)
+    return (
+        "Items (o/s = OpenCV default / service; a negative in one row over every dictionary"
+        " it was read in, frames per dictionary)\n" + table(headers, rows)
+    )
+
+
+def _hints(report: dict[str, Any]) -> str | None:
+    lines = [
+        f"  {item['name']} ({item['dictionary']}): {item['hint']}"
+        for item in report["items"]
+        if item.get("hint")
+    ]
+    if not lines:
+        return None
+    return (
+        "Nothing found (OpenCV's default tried the other families and the flipped picture on"
+        " the first frame)\n" + "\n".join(lines)
+    )
+
+
+def _dataset_goals(goals: Sequence[dict[str, Any]]) -> str:
+    rows = [
+        [
+            g["goal"],
+            str(g["value"]),
+            g["threshold"],
+            "PASS" if g["pass"] else "FAIL",
+            g.get("labels", ""),
+            g["note"],
+        ]
+        for g in goals
+    ]
+    return "Goals (against OpenCV's default, and the same figures against the labels)\n" + table(
+        ["goal", "value", "threshold", "result", "against the labels", "note"], rows
+    )
 
 
 def _dataset_end_to_end(report: dict[str, Any]) -> str | None:

@@ -7,8 +7,9 @@ distance error (solvePnP on the reported corners with the scene's intrinsics and
 
 :class:`Score` scores labelled pictures and videos: a reported id is *found* when the labels
 hold it (at most as many times as labelled), else it is a *false id*; markers a person saw but
-could not read absorb as many unlabelled ids (*unverified*). Found markers are also counted by
-their mean side in pixels (:func:`size_bucket`).
+could not read absorb as many unlabelled ids (*unverified*). Found markers and false ids are
+also counted by their mean side in pixels (:func:`size_bucket`), and found and labelled markers
+by id (what was *missed*).
 
 Both keep every detection time, in milliseconds.
 """
@@ -175,18 +176,23 @@ class Score:
     unverified: int = 0
     times_ms: list[float] = field(default_factory=list)
     buckets: Counter[str] = field(default_factory=Counter)
+    false_buckets: Counter[str] = field(default_factory=Counter)
     false_examples: Counter[int] = field(default_factory=Counter)
+    found_ids: Counter[int] = field(default_factory=Counter)
+    labelled_ids: Counter[int] = field(default_factory=Counter)
 
     def add(self, labels: Labels, detections: Sequence[Detection], ms: float) -> None:
         self.frames += 1
         self.times_ms.append(ms)
         self.labelled += sum(labels.markers.values())
+        self.labelled_ids.update(labels.markers)
         left = dict(labels.markers)
         unknown = labels.unknown_markers
         for detection in detections:
             if left.get(detection.tag_id, 0) > 0:
                 left[detection.tag_id] -= 1
                 self.found += 1
+                self.found_ids[detection.tag_id] += 1
                 self.buckets[size_bucket(mean_side(detection.corners))] += 1
             elif unknown > 0:
                 unknown -= 1
@@ -194,6 +200,7 @@ class Score:
             else:
                 self.false_ids += 1
                 self.false_examples[detection.tag_id] += 1
+                self.false_buckets[size_bucket(mean_side(detection.corners))] += 1
 
     def extend(self, other: Score) -> None:
         """Add what ``other`` counted (another item of the group)."""
@@ -204,7 +211,19 @@ class Score:
         self.unverified += other.unverified
         self.times_ms += other.times_ms
         self.buckets.update(other.buckets)
+        self.false_buckets.update(other.false_buckets)
         self.false_examples.update(other.false_examples)
+        self.found_ids.update(other.found_ids)
+        self.labelled_ids.update(other.labelled_ids)
+
+    @property
+    def missed(self) -> dict[int, int]:
+        """Labelled id -> how many of its markers (id-frames on video) were not reported."""
+        return {
+            tag: count - self.found_ids[tag]
+            for tag, count in sorted(self.labelled_ids.items())
+            if count > self.found_ids[tag]
+        }
 
     def summary(self) -> dict[str, Any]:
         times = np.asarray(self.times_ms, dtype=np.float64)
@@ -214,8 +233,12 @@ class Score:
             "found": self.found,
             "false_ids": self.false_ids,
             "unverified": self.unverified,
+            "share_found": round(self.found / self.labelled, 4) if self.labelled else None,
             "median_ms": rounded(np.median(times)) if times.size else None,
             "mean_ms": rounded(times.mean()) if times.size else None,
             "buckets": {b: self.buckets.get(b, 0) for b in BUCKETS},
+            "false_buckets": {b: self.false_buckets.get(b, 0) for b in BUCKETS},
             "false_examples": {str(k): v for k, v in sorted(self.false_examples.items())},
+            "found_ids": {str(k): v for k, v in sorted(self.found_ids.items())},
+            "missed": {str(k): v for k, v in self.missed.items()},
         }
