@@ -274,3 +274,29 @@ def test_bad_values_in_the_file_name_the_file_and_the_setting(tmp_path: Path) ->
     path.write_text("stats_interval_s = 0.01\n")
     with pytest.raises(SettingsError, match=r"bad_value\.toml: stats_interval_s must be in"):
         load_settings(path)
+
+
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"input_key": "zed/left/**"}, "compressed_input_key"),  # would take compressed frames
+        ({"compressed_input_key": "zed/left/image"}, "compressed_input_key"),
+        ({"detections_key": "perception/tags"}, "detections_key"),  # shares the record's key
+        ({"tf_key": "zed/left/image/compressed"}, "tf_key"),  # an input
+        ({"tf_key": "tf/*"}, "tf_key"),
+        ({"tf_prefix": "/tag_"}, "tf_prefix"),
+        ({"tf_prefix": "tag "}, "tf_prefix"),
+    ],
+)
+def test_the_ros_output_and_compressed_input_keys_are_validated(
+    values: dict[str, object], named: str
+) -> None:
+    with pytest.raises(SettingsError, match=named):
+        settings_from_mapping(values)
+
+
+def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
+    settings = settings_from_mapping(
+        {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}
+    )
+    assert (settings.compressed_input_key, settings.detections_key, settings.tf_key) == ("", "", "")
