@@ -58,9 +58,9 @@ def test_image_transport_formats_decode_to_bgr_with_the_header(fmt: str, ext: st
     frame = decode_compressed_cdr(compressed_cdr(_encoded(ext, _picture()), fmt))
     assert (frame.width, frame.height, frame.encoding.name) == (64, 48, "bgr8")
     assert (frame.stamp_ns, frame.frame_id) == (5_000_000_123, "cam")
-    b, g, r = (int(v) for v in frame.pixels[24, 8])
+    b, _, r = (int(v) for v in frame.pixels[24, 8])
     assert b > 200 and r < 50  # blue stays blue: decoded as BGR whatever the camera's order
-    b, g, r = (int(v) for v in frame.pixels[24, 56])
+    b, _, r = (int(v) for v in frame.pixels[24, 56])
     assert r > 200 and b < 50
 
 
@@ -146,7 +146,7 @@ def test_replays_encoder_writes_what_the_decoder_reads(encoding: str, codec: str
         pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     else:
         pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA)
-    frame = Frame(pixels, enc, None, "", None)
+    frame = Frame(np.asarray(pixels, np.uint8), enc, None, "", None)
     payload = encode_compressed_frame(frame, codec, stamp_ns=42, frame_id="zed_left")  # type: ignore[arg-type]
     fmt, _ = compressed_image_data(payload)
     target = "mono8" if encoding == "mono8" else "bgr8"

@@ -54,6 +54,7 @@ def test_the_size_opencv_writes_is_the_size_read(
     data = _encode(ext, width, height, channels, params)
     assert image_header_size(data) == (width, height)
     decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert decoded is not None
     assert decoded.shape[:2] == (height, width)
 
 

@@ -4,6 +4,7 @@ TransformStamped, read back by rosbags with the pose the service found."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 
@@ -43,7 +44,7 @@ def test_rosbags_reads_back_one_transform_per_tag_with_a_pose() -> None:
         [_tag(9), _tag(4, pose=False), _tag(2)], prefix="fid/", stamp_ns=7, frame_id="cam"
     )
     assert payload is not None
-    msg = TYPESTORE.deserialize_cdr(bytes(payload), TF_MESSAGE_TYPE)
+    msg: Any = TYPESTORE.deserialize_cdr(bytes(payload), TF_MESSAGE_TYPE)
     assert [t.child_frame_id for t in msg.transforms] == ["fid/9", "fid/2"]
     first = msg.transforms[0]
     assert (first.header.frame_id, first.header.stamp.sec, first.header.stamp.nanosec) == (

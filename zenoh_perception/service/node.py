@@ -46,9 +46,11 @@ from zenoh_perception.errors import (
 from zenoh_perception.pipeline import Analysis, Pipeline
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
+from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.wire.compressed import decode_compressed_cdr
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.frames import (
     Frame,
@@ -83,6 +85,7 @@ class _Arrival:
     sample: zenoh.Sample
     received_ns: int  # monotonic clock
     wall_ns: int  # time since the epoch
+    compressed: bool = False  # from compressed_input_key (CompressedImage CDR)
 
 
 class PerceptionService:
@@ -96,6 +99,7 @@ class PerceptionService:
         self._session = session
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
+        self._ros_outputs = RosOutputs(settings)
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
         self._stop = threading.Event()
@@ -132,6 +136,7 @@ class PerceptionService:
                 version=__version__,
                 zid=self._session.zid(),
                 input=self.settings.input_key,
+                compressed_input=self.settings.compressed_input_key,
                 tag=self.settings.tag_key,
                 record=self.settings.record_key,
                 detector=self.settings.detector,
@@ -151,7 +156,7 @@ class PerceptionService:
         self._record_pub = session.declare_publisher(
             s.record_key, encoding=MSGPACK_ENCODING, express=True
         )
-        self._declared += [self._tag_pub, self._record_pub]
+        self._declared += [self._tag_pub, self._record_pub, *self._ros_outputs.declare(session)]
         self._debug_pub: zenoh.Publisher | None = None
         if s.debug_image:
             self._debug_pub = session.declare_publisher(
@@ -181,6 +186,10 @@ class PerceptionService:
             thread.start()
         # Subscribe last: every frame that arrives finds the pipeline ready.
         self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
+        if s.compressed_input_key:
+            self._declared.append(
+                session.declare_subscriber(s.compressed_input_key, self._on_compressed_frame)
+            )
 
     def close(self) -> None:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
@@ -207,6 +216,10 @@ class PerceptionService:
 
     def _on_frame(self, sample: zenoh.Sample) -> None:
         arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns())
+        self.stats.on_received(self._mailbox.put(arrival))
+
+    def _on_compressed_frame(self, sample: zenoh.Sample) -> None:
+        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), compressed=True)
         self.stats.on_received(self._mailbox.put(arrival))
 
     def _on_debug_matching(self, status: zenoh.MatchingStatus) -> None:
@@ -314,7 +327,10 @@ class PerceptionService:
         check_payload_size(len(sample.payload), s.max_frame_bytes)
         payload = sample.payload.to_bytes()
         attachment = sample.attachment
-        if attachment is not None:
+        if arrival.compressed:
+            frame = decode_compressed_cdr(payload, max_pixels=s.max_frame_pixels)
+            source = "compressed"
+        elif attachment is not None:
             frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
             source = "raw"
         else:
@@ -358,6 +374,7 @@ class PerceptionService:
             self._publish(self._record_pub, "record", record.to_msgpack())
         except _ENCODE_ERRORS as err:
             self._processing_failed(ProcessingError("encode_record", err))
+        self._publish_ros_outputs(analysis, record.stamp_ns, frame.frame_id)
         self.stats.on_processed(
             latency_ms,
             frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
@@ -368,6 +385,14 @@ class PerceptionService:
                 self._publish_debug(frame, analysis, record.stamp_ns)
             except ProcessingError as err:
                 self._processing_failed(err)
+
+    def _publish_ros_outputs(self, analysis: Analysis, stamp_ns: int, frame_id: str) -> None:
+        """Every detection and the tags' transforms (see service/ros_outputs.py)."""
+        encoded, failed = self._ros_outputs.encode(analysis, stamp_ns=stamp_ns, frame_id=frame_id)
+        for err in failed:
+            self._processing_failed(err)
+        for output in encoded:
+            self._publish(output.publisher, output.name, output.payload)
 
     def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
         """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
@@ -384,7 +409,13 @@ class PerceptionService:
             return
         self._last_debug = now
         try:
-            image = annotate(to_bgr(frame), analysis.tags, analysis.selected)
+            image = annotate(
+                to_bgr(frame),
+                analysis.tags,
+                analysis.selected,
+                intrinsics=self._pipeline.intrinsics,
+                tag_size=self.settings.tag_size_for,
+            )
             payload = bytes(
                 encode_compressed_image(
                     image,

@@ -22,7 +22,7 @@ of the format said, no readable size, undecodable, or decoded to another size th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Final, Literal, cast
 
 import cv2
 import numpy as np
@@ -170,13 +170,14 @@ def decode_compressed_cdr(payload: bytes | memoryview, *, max_pixels: int = MAX_
     width, height = check_declared_size(data, codec, max_pixels)
     flags = cv2.IMREAD_IGNORE_ORIENTATION | (cv2.IMREAD_GRAYSCALE if fmt.grey else cv2.IMREAD_COLOR)
     try:
-        pixels = cv2.imdecode(buffer, flags)
+        decoded = cv2.imdecode(buffer, flags)
     except cv2.error as err:
         text = f"OpenCV cannot decode the {codec}: {err}"
         raise CorruptImageError(text) from err
-    if pixels is None:
+    if decoded is None:
         text = f"OpenCV cannot decode the {codec}"
         raise CorruptImageError(text)
+    pixels = cast(Pixels, decoded)
     if pixels.shape[:2] != (height, width):
         text = f"decoded {pixels.shape[1]}x{pixels.shape[0]}, declared {width}x{height}"
         raise CorruptImageError(text)
