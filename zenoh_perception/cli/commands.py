@@ -12,7 +12,12 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY, DEFAULT_RATE_HZ
+from zenoh_perception.camera.defaults import (
+    DEFAULT_COMPRESSED_KEY,
+    DEFAULT_FRAME_ID,
+    DEFAULT_KEY,
+    DEFAULT_RATE_HZ,
+)
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
@@ -211,7 +216,17 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         help="rosbag2 folder, .mcap / .db3 file, video file, image folder or image file",
     )
     parser.add_argument(
-        "--key", default=DEFAULT_KEY, help=f"key to publish frames on (default: {DEFAULT_KEY})"
+        "--key",
+        default=None,
+        help=f"key to publish frames on (default: {DEFAULT_KEY}, with --compressed "
+        f"{DEFAULT_COMPRESSED_KEY})",
+    )
+    parser.add_argument(
+        "--compressed",
+        choices=("jpeg", "png"),
+        default=None,
+        help="publish sensor_msgs/CompressedImage CDR of this codec, as image_transport's "
+        "compressed plugin does (default: uncompressed frames)",
     )
     parser.add_argument(
         "--topic",
