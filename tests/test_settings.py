@@ -295,6 +295,12 @@ def test_the_ros_output_and_compressed_input_keys_are_validated(
         settings_from_mapping(values)
 
 
+def test_one_input_may_be_off_but_not_both() -> None:
+    assert settings_from_mapping({"input_key": ""}).compressed_input_key
+    with pytest.raises(SettingsError, match="input_key and compressed_input_key"):
+        settings_from_mapping({"input_key": "", "compressed_input_key": ""})
+
+
 def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
     settings = settings_from_mapping(
         {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}

@@ -73,7 +73,10 @@ class Settings:
     """Everything the perception service can be told (see ``config/perception.toml``)."""
 
     # Zenoh keys
-    input_key: str = field(default="zed/left/image", metadata=_doc("key of incoming frames"))
+    input_key: str = field(
+        default="zed/left/image",
+        metadata=_doc("key of raw / sensor_msgs/Image CDR frames; '' = off (compressed only)"),
+    )
     compressed_input_key: str = field(
         default="zed/left/image/compressed",
         metadata=_doc("key of sensor_msgs/CompressedImage CDR frames (JPEG, PNG); '' = off"),
@@ -278,10 +281,13 @@ def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
 
 
 def _validate_keys(settings: Settings) -> None:
-    for name in ("input_key", *_OUTPUT_KEYS, "liveliness_key"):
+    for name in (*_OUTPUT_KEYS, "liveliness_key"):
         if not getattr(settings, name):
             msg = f"{name} must not be empty"
             raise SettingsError(msg)
+    if not settings.input_key and not settings.compressed_input_key:
+        msg = "input_key and compressed_input_key are both empty: the service needs an input"
+        raise SettingsError(msg)
     inputs = {
         name: _key_expr(name, getattr(settings, name))
         for name in _INPUT_KEYS

@@ -185,7 +185,8 @@ class PerceptionService:
         for thread in self._threads:
             thread.start()
         # Subscribe last: every frame that arrives finds the pipeline ready.
-        self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
+        if s.input_key:
+            self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
         if s.compressed_input_key:
             self._declared.append(
                 session.declare_subscriber(s.compressed_input_key, self._on_compressed_frame)
