@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 import zenoh
 
 from tests.helpers import (
     Collector,
+    loopback_endpoint,
     open_session,
     running_cli,
     wait_for_status,
@@ -141,3 +143,42 @@ def test_no_transform_without_a_pose_or_with_tf_off(endpoint: str, flags: tuple[
         # there been any, would have come before the second frame's outputs
         assert "tf" not in {sample.key for sample in everything.drain()}
         assert proc.poll() is None
+
+
+def _debug_image(flags: tuple[str, ...], endpoint: str) -> np.ndarray:
+    """The first debug image the real service draws for a frame of MARKERS."""
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting", *flags),
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        debug = Collector(camera, "perception/debug/image/compressed")
+        records = Collector(camera, "perception/tags")
+        publisher = camera.declare_publisher("zed/left/image", congestion_control=_BLOCK)
+        wait_for_subscriber(publisher)
+        meta = RawFrameMeta(W, H, frame_id="cam")
+        for _ in range(100):  # until the service has seen the debug subscriber
+            publisher.put(render_markers(W, H, MARKERS).tobytes(), attachment=meta.to_msgpack())
+            decode_record(records.get(timeout=20).payload)
+            sample = debug.drain()
+            if sample:
+                msg = TYPESTORE.deserialize_cdr(
+                    sample[0].payload, "sensor_msgs/msg/CompressedImage"
+                )
+                image = cv2.imdecode(np.asarray(msg.data), cv2.IMREAD_COLOR)
+                assert image is not None
+                return image
+        raise AssertionError("no debug image")
+
+
+def _reddish(image: np.ndarray, x: int, y: int) -> bool:
+    patch = image[y - 2 : y + 3, x - 2 : x + 3].reshape(-1, 3).astype(int)
+    return bool(np.any((patch[:, 2] > 150) & (patch[:, 1] < 110) & (patch[:, 0] < 110)))
+
+
+def test_the_debug_image_draws_the_axes_of_posed_tags(endpoint: str) -> None:
+    # tag 8 (centre 430, 250) at 0.5 m: its x axis, 0.1 m long, runs 100 px to the right
+    posed = _debug_image(POSE_FLAGS, endpoint)
+    assert _reddish(posed, 470, 250) and _reddish(posed, 500, 250)
+    plain = _debug_image((), loopback_endpoint())
+    assert not _reddish(plain, 470, 250) and not _reddish(plain, 500, 250)
