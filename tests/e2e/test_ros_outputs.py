@@ -162,7 +162,7 @@ def _debug_image(flags: tuple[str, ...], endpoint: str) -> np.ndarray:
             decode_record(records.get(timeout=20).payload)
             sample = debug.drain()
             if sample:
-                msg = TYPESTORE.deserialize_cdr(
+                msg: Any = TYPESTORE.deserialize_cdr(
                     sample[0].payload, "sensor_msgs/msg/CompressedImage"
                 )
                 image = cv2.imdecode(np.asarray(msg.data), cv2.IMREAD_COLOR)
