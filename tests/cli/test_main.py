@@ -44,7 +44,7 @@ def _subcommands() -> set[str]:
 
 
 def test_the_subcommands() -> None:
-    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "bench"}
+    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "bench", "view"}
 
 
 @pytest.mark.parametrize("command", sorted(_subcommands()))
