@@ -20,6 +20,7 @@ import pytest
 from ruamel.yaml import YAML
 
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.compressed import COMPRESSED_INPUT_TOPIC
 from zenoh_perception.wire.detections import DETECTIONS_TOPIC
 from zenoh_perception.wire.tf import TF_TOPIC
 
@@ -32,7 +33,7 @@ DOCKERIGNORE = ROOT / ".dockerignore"
 IMAGE_TOPIC = "/zed/left/image"
 TAG_TOPIC = "/tag"
 DEBUG_IMAGE_TOPIC = "/perception/debug/image/compressed"
-COMPRESSED_TOPIC = "/zed/left/image/compressed"
+COMPRESSED_TOPIC = COMPRESSED_INPUT_TOPIC.topic
 ROS_TO_ZENOH = (IMAGE_TOPIC, COMPRESSED_TOPIC)
 ZENOH_TO_ROS = (TAG_TOPIC, DEBUG_IMAGE_TOPIC, DETECTIONS_TOPIC.topic, TF_TOPIC.topic)
 NEVER_ROUTED = (

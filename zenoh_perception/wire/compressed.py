@@ -49,9 +49,15 @@ from zenoh_perception.wire.image_header import JPEG_SOI, PNG_SIGNATURE, image_he
 from zenoh_perception.wire.messages import (
     COMPRESSED_IMAGE_TYPE,
     TYPESTORE,
+    RosTopic,
     deserialize,
     header,
     stamp_ns_of,
+)
+
+#: The input: the ROS topic of ``compressed_input_key``'s default and its type.
+COMPRESSED_INPUT_TOPIC: Final = RosTopic(
+    "compressed_input_key", "/zed/left/image/compressed", COMPRESSED_IMAGE_TYPE
 )
 
 Codec = Literal["jpeg", "png"]
