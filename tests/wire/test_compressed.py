@@ -73,6 +73,15 @@ def test_a_mono8_png_decodes_to_grey() -> None:
     assert np.array_equal(frame.pixels, grey)
 
 
+@pytest.mark.parametrize(("ext", "fmt"), [(".jpg", "jpeg"), (".png", "png")])
+def test_a_colour_frame_decodes_straight_to_grey_when_asked(ext: str, fmt: str) -> None:
+    picture = _picture()
+    frame = decode_compressed_cdr(compressed_cdr(_encoded(ext, picture), fmt), grey=True)
+    assert (frame.encoding.name, frame.pixels.shape) == ("mono8", (48, 64))
+    expected = cv2.cvtColor(picture, cv2.COLOR_BGR2GRAY).astype(int)
+    assert np.abs(frame.pixels[:, :24].astype(int) - expected[:, :24]).max() < 8
+
+
 def test_the_png_bomb_is_refused_from_its_header() -> None:
     payload = compressed_cdr(png_declaring(16000, 16000), "png")
     with pytest.raises(FrameDecodeError) as caught:

@@ -329,7 +329,10 @@ class PerceptionService:
         payload = sample.payload.to_bytes()
         attachment = sample.attachment
         if arrival.compressed:
-            frame = decode_compressed_cdr(payload, max_pixels=s.max_frame_pixels)
+            # colour only for a watched debug image; the detector reads grey
+            frame = decode_compressed_cdr(
+                payload, max_pixels=s.max_frame_pixels, grey=not self._debug_watched.is_set()
+            )
             source = "compressed"
         elif attachment is not None:
             frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
