@@ -324,6 +324,25 @@ def test_ros_graph_settings_are_validated_naming_the_setting(
         settings_from_mapping(values)
 
 
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"input_key": "zed/left/**"}, "compressed_input_key"),  # would take compressed frames
+        ({"compressed_input_key": "zed/left/image"}, "compressed_input_key"),
+        ({"detections_key": "perception/tags"}, "detections_key"),  # shares the record's key
+        ({"tf_key": "zed/left/image/compressed"}, "tf_key"),  # an input
+        ({"tf_key": "tf/*"}, "tf_key"),
+        ({"tf_prefix": "/tag_"}, "tf_prefix"),
+        ({"tf_prefix": "tag "}, "tf_prefix"),
+    ],
+)
+def test_the_ros_output_and_compressed_input_keys_are_validated(
+    values: dict[str, object], named: str
+) -> None:
+    with pytest.raises(SettingsError, match=named):
+        settings_from_mapping(values)
+
+
 def test_ros_graph_settings_that_ros_accepts() -> None:
     settings = settings_from_mapping(
         {
@@ -336,3 +355,16 @@ def test_ros_graph_settings_that_ros_accepts() -> None:
     assert settings.ros_transport == "rmw_zenoh"
     # wildcards stay fine for the bridge, whose keys are no ROS names
     assert settings_from_mapping({"input_key": "zed/*/image"}).input_key == "zed/*/image"
+
+
+def test_one_input_may_be_off_but_not_both() -> None:
+    assert settings_from_mapping({"input_key": ""}).compressed_input_key
+    with pytest.raises(SettingsError, match="input_key and compressed_input_key"):
+        settings_from_mapping({"input_key": "", "compressed_input_key": ""})
+
+
+def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
+    settings = settings_from_mapping(
+        {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}
+    )
+    assert (settings.compressed_input_key, settings.detections_key, settings.tf_key) == ("", "", "")

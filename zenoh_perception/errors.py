@@ -55,6 +55,31 @@ class SizeMismatchError(FrameDecodeError):
     reason = "size_mismatch"
 
 
+class CompressedImageCdrError(FrameDecodeError):
+    """The payload is not a well-formed sensor_msgs/msg/CompressedImage CDR sample."""
+
+    reason = "bad_compressed_cdr"
+
+
+class ImageFormatError(FrameDecodeError):
+    """A compressed frame that is neither JPEG nor PNG, or whose bytes are not what its
+    ``format`` says."""
+
+    reason = "unsupported_image_format"
+
+
+class TruncatedImageError(FrameDecodeError):
+    """A compressed frame cut short: no readable size, or no end of image."""
+
+    reason = "truncated_image"
+
+
+class CorruptImageError(FrameDecodeError):
+    """A compressed frame whose header or data OpenCV cannot decode."""
+
+    reason = "corrupt_image"
+
+
 class MessageDecodeError(PerceptionError):
     """An output message (tag CDR or perception record) could not be decoded."""
 

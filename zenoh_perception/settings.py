@@ -83,7 +83,14 @@ class Settings:
     """Everything the perception service can be told (see ``config/perception.toml``)."""
 
     # Zenoh keys
-    input_key: str = field(default="zed/left/image", metadata=_doc("key of incoming frames"))
+    input_key: str = field(
+        default="zed/left/image",
+        metadata=_doc("key of raw / sensor_msgs/Image CDR frames; '' = off (compressed only)"),
+    )
+    compressed_input_key: str = field(
+        default="zed/left/image/compressed",
+        metadata=_doc("key of sensor_msgs/CompressedImage CDR frames (JPEG, PNG); '' = off"),
+    )
     tag_key: str = field(default="tag", metadata=_doc("key of the StarterProjectTag CDR output"))
     record_key: str = field(
         default="perception/tags", metadata=_doc("key of the msgpack record with every detection")
@@ -91,6 +98,16 @@ class Settings:
     debug_image_key: str = field(
         default="perception/debug/image/compressed",
         metadata=_doc("key of the annotated JPEG (sensor_msgs/CompressedImage CDR)"),
+    )
+    detections_key: str = field(
+        default="perception/detections",
+        metadata=_doc("key of every detection as apriltag_msgs/AprilTagDetectionArray; '' = off"),
+    )
+    tf_key: str = field(
+        default="tf", metadata=_doc("key of tf2_msgs/TFMessage, camera -> tag poses; '' = off")
+    )
+    tf_prefix: str = field(
+        default="tag_", metadata=_doc("child frame of a tag's transform: <tf_prefix><id>")
     )
     status_key: str = field(default="perception/status", metadata=_doc("status queryable key"))
     liveliness_key: str = field(
@@ -278,9 +295,13 @@ def check_ros_package(name: str) -> str:
 
 
 #: Keys the service subscribes to: key expressions (wildcards allowed).
-_INPUT_KEYS: Final = ("input_key", "camera_info_key")
+_INPUT_KEYS: Final = ("input_key", "compressed_input_key", "camera_info_key")
 #: Keys the service publishes on or serves: concrete, never intersecting an input.
 _OUTPUT_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "status_key")
+#: Outputs that "" turns off; when set, held to the same rules as the others.
+_OPTIONAL_OUTPUT_KEYS: Final = ("detections_key", "tf_key")
+#: Characters a ROS frame id may hold (tf2 refuses others; a leading '/' is deprecated).
+_FRAME_PREFIX: Final = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_/.-]*")
 
 
 def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
@@ -292,17 +313,21 @@ def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
 
 
 def _validate_keys(settings: Settings) -> None:
-    for name in ("input_key", *_OUTPUT_KEYS, "liveliness_key"):
+    for name in (*_OUTPUT_KEYS, "liveliness_key"):
         if not getattr(settings, name):
             msg = f"{name} must not be empty"
             raise SettingsError(msg)
+    if not settings.input_key and not settings.compressed_input_key:
+        msg = "input_key and compressed_input_key are both empty: the service needs an input"
+        raise SettingsError(msg)
     inputs = {
         name: _key_expr(name, getattr(settings, name))
         for name in _INPUT_KEYS
         if getattr(settings, name)
     }
     outputs: dict[str, zenoh.KeyExpr] = {}
-    for name in (*_OUTPUT_KEYS, "liveliness_key"):
+    optional = tuple(name for name in _OPTIONAL_OUTPUT_KEYS if getattr(settings, name))
+    for name in (*_OUTPUT_KEYS, *optional, "liveliness_key"):
         value = getattr(settings, name)
         key = _key_expr(name, value)
         if "*" in value:
@@ -312,13 +337,7 @@ def _validate_keys(settings: Settings) -> None:
             )
             raise SettingsError(msg)
         outputs[name] = key
-    if "camera_info_key" in inputs and inputs["input_key"].intersects(inputs["camera_info_key"]):
-        msg = (
-            f"camera_info_key = {settings.camera_info_key!r} intersects input_key = "
-            f"{settings.input_key!r}: frames and CameraInfo would be mixed"
-        )
-        raise SettingsError(msg)
-    for out_name in _OUTPUT_KEYS:
+    for out_name in (*_OUTPUT_KEYS, *optional):
         for in_name, in_key in inputs.items():
             if outputs[out_name].intersects(in_key):
                 msg = (
@@ -326,8 +345,17 @@ def _validate_keys(settings: Settings) -> None:
                     f"{getattr(settings, in_name)!r}: the service would receive what it sends"
                 )
                 raise SettingsError(msg)
+    names = list(inputs)
+    for i, first in enumerate(names):
+        for second in names[i + 1 :]:
+            if inputs[first].intersects(inputs[second]):
+                msg = (
+                    f"{second} = {getattr(settings, second)!r} intersects {first} = "
+                    f"{getattr(settings, first)!r}: the two inputs would be mixed"
+                )
+                raise SettingsError(msg)
     seen: dict[str, str] = {}
-    for name in _OUTPUT_KEYS:
+    for name in (*_OUTPUT_KEYS, *optional):
         value = getattr(settings, name)
         if value in seen:
             msg = f"{name} and {seen[value]} are both {value!r}: each output needs its own key"
@@ -400,6 +428,12 @@ def _validate(settings: Settings) -> None:
     _validate_keys(settings)
     check_ros_package(settings.ros_package)
     _validate_ros(settings)
+    if not _FRAME_PREFIX.fullmatch(settings.tf_prefix):
+        msg = (
+            f"tf_prefix {settings.tf_prefix!r} is not the start of a frame id (letters, digits, "
+            "'_', '/', '.', '-', not starting with '/')"
+        )
+        raise SettingsError(msg)
     if settings.policy not in tuple(Policy):
         msg = f"policy must be one of {', '.join(Policy)}, not {settings.policy!r}"
         raise SettingsError(msg)

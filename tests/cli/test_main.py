@@ -8,7 +8,8 @@ import socket
 import pytest
 
 from zenoh_perception import __version__
-from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY
+from zenoh_perception.camera import replay
+from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_FRAME_ID, DEFAULT_KEY
 from zenoh_perception.cli import main as cli
 from zenoh_perception.settings import Settings
 
@@ -47,7 +48,7 @@ def _subcommands() -> set[str]:
 
 
 def test_the_subcommands() -> None:
-    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "probe", "bench"}
+    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "probe", "bench", "view"}
 
 
 @pytest.mark.parametrize("command", sorted(_subcommands()))
@@ -105,13 +106,30 @@ def test_bad_flag_values_exit_2_naming_the_flag(
     assert named in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("flags", "key"),
+    [
+        (["--compressed", "jpeg"], DEFAULT_COMPRESSED_KEY),
+        (["--compressed", "png", "--key", "cam/c"], "cam/c"),
+    ],
+)
+def test_replay_compressed_goes_to_the_compressed_key_unless_told(
+    flags: list[str], key: str
+) -> None:
+    args = cli.build_parser().parse_args(["replay", "bag", *flags])
+    options = replay.options_from_args(args, stderr_is_tty=False)
+    assert (options.key, options.compressed) == (key, flags[1])
+
+
 def test_replay_flags_have_the_camera_defaults() -> None:
     args = cli.build_parser().parse_args(["replay", "bag"])
-    assert (args.key, args.frame_id, args.rate, args.limit) == (
-        DEFAULT_KEY,
+    assert (args.frame_id, args.rate, args.limit, args.compressed) == (
         DEFAULT_FRAME_ID,
         None,
         0,
+        None,
     )
+    options = replay.options_from_args(args, stderr_is_tty=False)
+    assert (options.key, options.compressed) == (DEFAULT_KEY, None)
     assert args.max_frame_bytes == Settings().max_frame_bytes
     assert args.wait_for_subscriber is True and args.subscriber_timeout is None

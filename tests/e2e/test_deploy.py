@@ -20,6 +20,9 @@ import pytest
 from ruamel.yaml import YAML
 
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.compressed import COMPRESSED_INPUT_TOPIC
+from zenoh_perception.wire.detections import DETECTIONS_TOPIC
+from zenoh_perception.wire.tf import TF_TOPIC
 
 ROOT = Path(__file__).resolve().parents[2]
 BRIDGE_CONFIG = ROOT / "config" / "zenoh-bridge-ros2dds.json5"
@@ -30,17 +33,21 @@ DOCKERIGNORE = ROOT / ".dockerignore"
 IMAGE_TOPIC = "/zed/left/image"
 TAG_TOPIC = "/tag"
 DEBUG_IMAGE_TOPIC = "/perception/debug/image/compressed"
-ROS_TO_ZENOH = (IMAGE_TOPIC,)
-ZENOH_TO_ROS = (TAG_TOPIC, DEBUG_IMAGE_TOPIC)
+COMPRESSED_TOPIC = "/" + getattr(Settings(), COMPRESSED_INPUT_TOPIC.key_setting)
+ROS_TO_ZENOH = (IMAGE_TOPIC, COMPRESSED_TOPIC)
+ZENOH_TO_ROS = (
+    TAG_TOPIC,
+    DEBUG_IMAGE_TOPIC,
+    *("/" + getattr(Settings(), t.key_setting) for t in (DETECTIONS_TOPIC, TF_TOPIC)),
+)
 NEVER_ROUTED = (
     "/cmd_vel",
     "/zed/right/image",
-    "/zed/left/image/compressed",
     "/zed/left/image_raw",
     "/zed/left/camera_info",
     "/rosout",
     "/parameter_events",
-    "/tf",
+    "/tf_static",
     "/tag_detections",
     "/robot/tag",
     "/perception/debug/image",
@@ -188,6 +195,9 @@ def test_routed_topics_map_to_the_service_keys(plugin: Mapping[str, Any]) -> Non
     assert _ros_name_to_key(IMAGE_TOPIC, namespace) == defaults.input_key
     assert _ros_name_to_key(TAG_TOPIC, namespace) == defaults.tag_key
     assert _ros_name_to_key(DEBUG_IMAGE_TOPIC, namespace) == defaults.debug_image_key
+    assert _ros_name_to_key(COMPRESSED_TOPIC, namespace) == defaults.compressed_input_key
+    assert _ros_name_to_key("/perception/detections", namespace) == defaults.detections_key
+    assert _ros_name_to_key("/tf", namespace) == defaults.tf_key
 
 
 def test_image_topic_is_never_downsampled_by_the_bridge(plugin: Mapping[str, Any]) -> None:

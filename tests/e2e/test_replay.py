@@ -38,6 +38,7 @@ from tests.helpers import (
 )
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.compressed import compressed_image_data, decode_compressed_cdr
 from zenoh_perception.wire.frames import (
     decode_attachment,
     decode_raw_frame,
@@ -201,6 +202,48 @@ def test_shm_replay_is_answered_and_read_from_shared_memory(
     assert started["shm"] == "True"
     done = _done(output)
     assert (done["shm_frames"], done["plain_frames"]) == (str(N_FRAMES), "0")
+
+
+@pytest.mark.parametrize("codec", ["jpeg", "png"])
+def test_bag_replays_compressed_through_the_service_with_original_stamps(
+    tmp_path: Path, endpoint: str, served: Served, codec: str
+) -> None:
+    bag = tmp_path / "bag"
+    write_bag(bag, StoragePlugin.MCAP)
+    records = Collector(served.session, "perception/tags")
+    raw = Collector(served.session, "zed/left/image")
+    with running_cli(*_replay_args(bag, endpoint, "--compressed", codec)) as proc:
+        output = _finish(proc)
+    (started,) = log_events(output, "replay_started")
+    assert (started["key"], started["compressed"]) == ("zed/left/image/compressed", codec)
+    got = served.answered(records, N_FRAMES)
+    indices = _frame_indices(got, "stamp_ns", HEADER_STAMPS)
+    assert [r["selected"]["tag_id"] for r in got] == [TAG_IDS[i] for i in indices]
+    assert {r["source"] for r in got} == {"compressed"}
+    assert {r["frame_id"] for r in got} == {FRAME_ID}
+    assert {(r["width"], r["height"]) for r in got} == {(W, H)}
+    assert raw.drain() == []  # nothing on the raw key
+
+
+def test_cli_image_folder_replays_compressed_frames_as_image_transport_does(
+    tmp_path: Path, endpoint: str
+) -> None:
+    folder = tmp_path / "images"
+    expected = write_images(folder)
+    with open_session(listen=[endpoint]) as camera_side:
+        frames = Collector(camera_side, "zed/left/image/compressed")
+        args = _replay_args(
+            folder, endpoint, "--as-fast-as-possible", "--compressed", "png", "--frame-id", "c0"
+        )
+        with running_cli(*args) as proc:
+            got = [frames.get(timeout=REPLAY_TIMEOUT_S) for _ in range(N_FRAMES)]
+            _finish(proc)
+    for n, sample in enumerate(got):
+        fmt, _ = compressed_image_data(sample.payload)
+        assert fmt == "bgra8; png compressed bgr8"
+        decoded = decode_compressed_cdr(sample.payload)
+        assert decoded.frame_id == "c0"
+        np.testing.assert_array_equal(decoded.pixels, expected[n])  # PNG: lossless
 
 
 def test_cli_image_folder_loop_limit_as_fast_as_possible(tmp_path: Path, endpoint: str) -> None:

@@ -34,7 +34,8 @@ from tests.helpers import (
 )
 from tests.wire.test_rmw_zenoh import ROS2_TYPE_HASHES
 from zenoh_perception.scene import render_markers
-from zenoh_perception.wire.frames import encode_image_cdr
+from zenoh_perception.wire.compressed import encode_compressed_frame
+from zenoh_perception.wire.frames import RawFrameMeta, decode_raw_frame, encode_image_cdr
 from zenoh_perception.wire.messages import TYPESTORE, make_typestore
 from zenoh_perception.wire.records import TagCodec
 from zenoh_perception.wire.rmw_zenoh import (
@@ -54,6 +55,7 @@ from zenoh_perception.wire.rmw_zenoh import (
 W, H = 640, 480
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
+DETECTIONS = "apriltag_msgs/msg/AprilTagDetectionArray"
 TAG = "mrover/msg/StarterProjectTag"
 TAG_HASH = type_hash(make_typestore("mrover"), TAG)
 #: A camera of another ROS distribution: same topic and type, another definition hash.
@@ -153,7 +155,15 @@ def test_the_service_is_a_ros2_node_on_an_rmw_zenoh_graph(endpoint: str, node: R
     graph = GraphCache(session)
     with running_cli(*_service(endpoint)) as proc:
         wait_for_status(session)  # the status stays a plain Zenoh queryable
-        wanted = {"NN", "/tag", "/zed/left/image", "/perception/debug/image/compressed"}
+        wanted = {
+            "NN",
+            "/tag",
+            "/zed/left/image",
+            "/zed/left/image/compressed",
+            "/perception/debug/image/compressed",
+            "/perception/detections",
+            "/tf",
+        }
         wait_until(
             lambda: set(_service_tokens(graph)) >= wanted,
             timeout=30,
@@ -175,11 +185,31 @@ def test_the_service_is_a_ros2_node_on_an_rmw_zenoh_graph(endpoint: str, node: R
         assert (camera.kind, camera.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
         assert camera.type_hash == ROS2_TYPE_HASHES[IMAGE]
         assert (debug.kind, debug.type_hash) == (PUBLISHER, ROS2_TYPE_HASHES[COMPRESSED])
-        assert len({t.entity_id for t in tokens.values() if t.kind != "NN"}) == 3
-        # a node starting later asks for the graph as it is
-        replies = session.liveliness().get("@ros2_lv/0/**", timeout=5)
-        got = {str(r.ok.key_expr) for r in replies if r.ok is not None}
-        assert sum("/zenoh_perception" in key for key in got) == len(tokens)
+        # every detection, the transforms and the compressed camera are ROS topics too
+        detections, tf = tokens["/perception/detections"], tokens["/tf"]
+        compressed = tokens["/zed/left/image/compressed"]
+        assert (detections.kind, detections.dds_type, detections.type_hash) == (
+            PUBLISHER,
+            "apriltag_msgs::msg::dds_::AprilTagDetectionArray_",
+            type_hash(TYPESTORE, DETECTIONS),
+        )
+        assert (tf.kind, tf.dds_type) == (PUBLISHER, "tf2_msgs::msg::dds_::TFMessage_")
+        assert (compressed.kind, compressed.type_hash) == (
+            SUBSCRIPTION,
+            ROS2_TYPE_HASHES[COMPRESSED],
+        )
+        assert len({t.entity_id for t in tokens.values() if t.kind != "NN"}) == 6
+        # a node starting later asks for the graph as it is (the answer may come in parts
+        # while links between peers are being set up: ask until it is whole)
+        got: set[str] = set()
+
+        def whole_graph() -> bool:
+            replies = session.liveliness().get("@ros2_lv/0/**", timeout=5)
+            got.clear()
+            got.update(str(r.ok.key_expr) for r in replies if r.ok is not None)
+            return sum("/zenoh_perception" in key for key in got) == len(tokens)
+
+        wait_until(whole_graph, timeout=30, what="every token of the service in a get")
         tag_token = next(k for k in got if "/MP/" in k and "/%tag/" in k)
 
         # an rmw_zenoh /tag subscriber and debug image viewer, on the exact keys ROS uses
@@ -191,6 +221,7 @@ def test_the_service_is_a_ros2_node_on_an_rmw_zenoh_graph(endpoint: str, node: R
             topic_key(0, "/perception/debug/image/compressed", COMPRESSED, debug.type_hash),
         )
         plain_tags = Collector(session, "tag")
+        arrays = Collector(session, topic_key(0, "/perception/detections", DETECTIONS, "*"))
         # the camera node: the Jazzy Image hash, then another distribution's
         image_key, camera_gid = node.entity(
             1, PUBLISHER, "/zed/left/image", IMAGE, camera.type_hash
@@ -209,6 +240,28 @@ def test_the_service_is_a_ros2_node_on_an_rmw_zenoh_graph(endpoint: str, node: R
             assert codec.decode(sample.payload).tag_id == i + 1
             received.append(sample)
             publisher.undeclare()
+        # each frame's detections, in apriltag_ros's type, with their own sequence numbers
+        array_samples = [arrays.get(timeout=30) for _ in range(6)]
+        messages: list[Any] = [
+            TYPESTORE.deserialize_cdr(a.payload, DETECTIONS) for a in array_samples
+        ]
+        ids = [[d.id for d in m.detections] for m in messages]
+        assert ids == [[1], [2], [3], [4], [5], [6]]
+        array_seqs = [decode_attachment(a.attachment or b"").sequence_number for a in array_samples]
+        assert array_seqs == [1, 2, 3, 4, 5, 6]
+        # a compressed camera on its rmw_zenoh key is answered too
+        compressed_key, compressed_gid = node.entity(
+            2, PUBLISHER, "/zed/left/image/compressed", COMPRESSED, compressed.type_hash
+        )
+        publisher = session.declare_publisher(compressed_key, congestion_control=_BLOCK)
+        wait_for_subscriber(publisher)
+        frame = decode_raw_frame(_marker_frame(9).tobytes(), RawFrameMeta(W, H).to_msgpack())
+        jpeg = encode_compressed_frame(frame, "jpeg", stamp_ns=1, frame_id="zed_left")
+        publisher.put(
+            bytes(jpeg), attachment=Attachment(1, time.time_ns(), compressed_gid).encode()
+        )
+        assert codec.decode(tags.get(timeout=30).payload).tag_id == 9
+        publisher.undeclare()
         attachments = [decode_attachment(s.attachment or b"") for s in received]
         assert [a.sequence_number for a in attachments] == [1, 2, 3, 4, 5, 6]
         assert {a.gid for a in attachments} == {gid_of(tag_token)}

@@ -387,7 +387,13 @@ def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     wait_until(lambda: rig.service.status()["frames"]["processed"] == 2, what="both frames counted")
     status = rig.service.status()
     assert status["worker_alive"] is True
-    assert status["publish_errors"] == {"tag": 1, "record": 0, "debug_image": 0}
+    assert status["publish_errors"] == {
+        "tag": 1,
+        "record": 0,
+        "debug_image": 0,
+        "detections": 0,
+        "tf": 0,
+    }
 
 
 def test_negative_stamps_are_refused_alike_raw_and_cdr(rig: Rig) -> None:

@@ -72,7 +72,13 @@ def test_publish_processing_and_camera_info_counters() -> None:
     stats.on_camera_info("bad_intrinsics")
     stats.on_camera_info(None)
     status = stats.snapshot().as_dict()
-    assert status["publish_errors"] == {"tag": 0, "record": 1, "debug_image": 0}
+    assert status["publish_errors"] == {
+        "tag": 0,
+        "record": 1,
+        "debug_image": 0,
+        "detections": 0,
+        "tf": 0,
+    }
     assert status["processing_errors"] == {"debug_image": 1}
     assert status["camera_info"] == {"received": 2, "rejected_by_reason": {"bad_intrinsics": 1}}
     # Neither is a frame: the frame counters stay as they were.

@@ -9,7 +9,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from zenoh_perception.scene import CameraModel, MarkerPose, square_corners
-from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose
+from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose, quaternion_from_rvec
 
 VGA = Intrinsics(500.0, 500.0, 319.5, 239.5)
 
@@ -112,3 +112,50 @@ def test_the_pose_of_detected_corners_is_the_true_pose(
     assert pose is not None
     assert pose.distance_m == pytest.approx(float(np.linalg.norm(position)), rel=0.05)
     assert _reprojection_px(pose, corners, size_m, intrinsics) < 0.02 * side_px + 0.25
+
+
+def _matrix_of_quaternion(q: tuple[float, float, float, float]) -> np.ndarray:
+    x, y, z, w = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@pytest.mark.parametrize(
+    ("rvec", "expected"),
+    [
+        ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+        ((np.pi, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),  # half a turn about x
+        ((0.0, np.pi / 2, 0.0), (0.0, np.sqrt(0.5), 0.0, np.sqrt(0.5))),
+        ((0.0, 0.0, -np.pi / 2), (0.0, 0.0, -np.sqrt(0.5), np.sqrt(0.5))),
+        ((0.0, 0.0, 3 * np.pi / 2), (0.0, 0.0, -np.sqrt(0.5), np.sqrt(0.5))),  # = -pi/2
+    ],
+)
+def test_quaternions_of_known_rotations(
+    rvec: tuple[float, float, float], expected: tuple[float, float, float, float]
+) -> None:
+    assert quaternion_from_rvec(rvec) == pytest.approx(expected, abs=1e-12)
+
+
+def test_a_tiny_rotation_keeps_its_axis() -> None:
+    x, y, z, w = quaternion_from_rvec((2e-9, -4e-9, 0.0))
+    assert (x, y, z) == pytest.approx((1e-9, -2e-9, 0.0), rel=1e-9)
+    assert w == pytest.approx(1.0)
+
+
+_ANGLE = st.floats(-10.0, 10.0, allow_nan=False)
+
+
+@given(st.tuples(_ANGLE, _ANGLE, _ANGLE))
+def test_the_quaternion_is_the_rotation_opencv_makes_of_the_rvec(
+    rvec: tuple[float, float, float],
+) -> None:
+    q = quaternion_from_rvec(rvec)
+    assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-12)
+    assert q[3] >= 0.0
+    rotation, _ = cv2.Rodrigues(np.array(rvec, dtype=np.float64))
+    np.testing.assert_allclose(_matrix_of_quaternion(q), rotation, atol=1e-9)

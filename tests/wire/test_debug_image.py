@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from zenoh_perception.tags.pose import Intrinsics
 from zenoh_perception.tags.selection import NO_TAG, TagObservation
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE
@@ -115,3 +116,44 @@ def test_a_stamp_ros_time_cannot_hold_is_clamped_in_the_debug_image() -> None:
     image = np.zeros((8, 8, 3), dtype=np.uint8)
     cdr = bytes(encode_compressed_image(image, quality=80, stamp_ns=2**62, frame_id="f"))
     assert _stamp_of(cdr) == ROS_TIME_MAX_NS
+
+
+def _posed_tag(tag_id: int = 4) -> TagObservation:
+    # 0.2 m tag 1 m ahead on the optical axis of VGA (f = 500): 100 px, facing the camera
+    # (rvec: half a turn about x, so the tag's y axis points up the image, z at the camera)
+    corners = ((270.0, 190.0), (370.0, 190.0), (370.0, 290.0), (270.0, 290.0))
+    return TagObservation(
+        tag_id, 320.0, 240.0, 0.5, corners, 1e4, 1.0, (np.pi, 0.0, 0.0), (0.0, 0.0, 1.0)
+    )
+
+
+VGA = Intrinsics(500.0, 500.0, 320.0, 240.0)
+
+
+def test_a_tag_with_a_pose_gets_its_axes_x_red_y_green() -> None:
+    image = np.zeros((480, 640, 3), dtype=np.uint8)
+    tag = _posed_tag()
+    annotate(image, [tag], tag.message(), intrinsics=VGA, tag_size=lambda _id: 0.2)
+    # half the side (0.1 m): 50 px from the centre
+    assert _colour_at(image, 345, 240) == RED  # x to the right
+    assert _colour_at(image, 320, 215) == GREEN  # y up the image
+    plain = np.zeros_like(image)
+    annotate(plain, [tag], tag.message())  # no intrinsics: no axes
+    assert _colour_at(plain, 345, 240) == (0, 0, 0)
+
+
+def test_no_axes_without_a_pose_or_a_size() -> None:
+    image = np.zeros((480, 640, 3), dtype=np.uint8)
+    tag = _posed_tag()
+    annotate(image, [tag], tag.message(), intrinsics=VGA, tag_size=lambda _id: 0.0)
+    assert _colour_at(image, 345, 240) == (0, 0, 0)
+
+
+def test_labels_sit_on_a_dark_box_readable_on_white() -> None:
+    image = np.full((480, 640, 3), 255, dtype=np.uint8)
+    tag = _tag(5, 100, 200, 100)
+    annotate(image, [tag], NO_TAG)
+    label = image[180:196, 100:176]  # above the top-left corner, where the label goes
+    dark = np.all(label < 40, axis=2).mean()
+    assert dark > 0.4
+    assert np.all(image[14:30, 10:80] < 40, axis=2).mean() > 0.4  # "no tag" on its box too

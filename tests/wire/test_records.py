@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from tests.helpers import REPO
 from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.tags.pose import quaternion_from_rvec
 from zenoh_perception.tags.selection import NO_TAG, Metric, TagMessage, TagObservation
 from zenoh_perception.wire.messages import (
     make_typestore,
@@ -89,6 +90,19 @@ def test_record_roundtrip_matches_the_schema(tags: tuple[TagObservation, ...]) -
         assert record["tags"][0]["distance_m"] == 2.5
     else:
         assert record["selected"]["tag_id"] == -1
+
+
+def test_a_pose_carries_its_rotation_as_a_quaternion_too() -> None:
+    schema = _schema("perception-tags.schema.json")
+    record = decode_record(_record((TAG, AREA_TAG)).to_msgpack())
+    jsonschema.validate(record, schema)
+    pose = record["tags"][0]["pose"]
+    assert pose["rvec"] == [0.1, 0.2, 0.3] and pose["tvec"] == [0.0, 0.5, 2.4]
+    assert pose["quaternion"] == list(quaternion_from_rvec((0.1, 0.2, 0.3)))
+    assert "pose" not in record["tags"][1]
+    pose["quaternion"] = [0.0, 0.0, 1.0]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(record, schema)
 
 
 def test_each_tag_of_the_record_says_which_metric_its_closeness_used() -> None:

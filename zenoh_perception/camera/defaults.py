@@ -6,6 +6,8 @@ from typing import Final
 
 #: The key the ZED publishes its left image on, and the service reads.
 DEFAULT_KEY: Final = "zed/left/image"
+#: The key image_transport's compressed plugin publishes the left image on (replay --compressed).
+DEFAULT_COMPRESSED_KEY: Final = "zed/left/image/compressed"
 #: Topic preferred when a bag holds several sensor_msgs/msg/Image topics.
 DEFAULT_TOPIC: Final = "/zed/left/image"
 #: Frame rate of image folders (and of videos that do not state theirs).

@@ -13,6 +13,10 @@ congestion control BLOCK, so a slow link slows the replay instead of dropping fr
 camera on the service's machine would: no copy on put, the service reads the frame in place.
 Without shared memory it falls back to plain puts and says so in the log.
 
+``--compressed jpeg|png`` publishes every frame as sensor_msgs/msg/CompressedImage CDR, as
+image_transport's compressed plugin would (on ``zed/left/image/compressed`` unless ``--key``
+says otherwise), with the frame's stamp and frame id.
+
 A frame larger than ``--max-frame-bytes`` (the service's ``max_frame_bytes`` default) is not
 sent: the replay stops with exit 2 and says how to raise the limits, rather than feed a
 service that would refuse every such frame.
@@ -34,19 +38,20 @@ from typing import Final, TextIO
 
 import zenoh
 
-from zenoh_perception.camera.defaults import DEFAULT_KEY
+from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_KEY
 from zenoh_perception.camera.shm import ShmPutter
 from zenoh_perception.camera.sources import (
     FrameSource,
     ReplayError,
     SourceFrame,
 )
-from zenoh_perception.errors import PayloadTooLargeError
+from zenoh_perception.errors import FrameDecodeError, PayloadTooLargeError
 from zenoh_perception.service.zenoh_args import (
     open_zenoh,
 )
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
-from zenoh_perception.wire.frames import check_payload_size
+from zenoh_perception.wire.compressed import CODECS, Codec, encode_compressed_frame
+from zenoh_perception.wire.frames import check_payload_size, decode_image_cdr, decode_raw_frame
 
 log = logging.getLogger("zenoh_perception.camera.replay")
 
@@ -174,6 +179,30 @@ class ProgressBar:
         self._width = len(line)
 
 
+# -- pure: compression ----------------------------------------------------------------------
+
+
+def compress_frame(frame: SourceFrame, codec: Codec) -> SourceFrame:
+    """``frame`` (raw with its attachment, or Image CDR) as CompressedImage CDR, keeping its
+    stamp and frame id (a raw frame without a stamp gets its recording-clock time).
+
+    Raises:
+        ReplayError: the frame cannot be decoded (an encoding the service does not read).
+
+    """
+    try:
+        if frame.attachment is None:
+            decoded = decode_image_cdr(frame.payload)
+        else:
+            decoded = decode_raw_frame(frame.payload, frame.attachment)
+    except FrameDecodeError as err:
+        msg = f"cannot compress a frame: {err}"
+        raise ReplayError(msg) from err
+    stamp_ns = decoded.stamp_ns if decoded.stamp_ns is not None else frame.stamp_ns
+    payload = encode_compressed_frame(decoded, codec, stamp_ns=stamp_ns, frame_id=decoded.frame_id)
+    return SourceFrame(bytes(payload), None, frame.stamp_ns)
+
+
 # -- the Zenoh publishing loop ---------------------------------------------------------------
 
 
@@ -191,6 +220,7 @@ class ReplayOptions:
     progress: bool = False
     shm: bool = False  # put frames from a Zenoh shared-memory buffer
     max_frame_bytes: int = Settings().max_frame_bytes  # larger frames stop the replay
+    compressed: Codec | None = None  # publish CompressedImage CDR of this codec
 
 
 def _is_matching(publisher: zenoh.Publisher) -> bool:
@@ -244,7 +274,12 @@ def _publish_all(
         sent_this_pass = 0
         frames = source.frames(epoch_ns=time.time_ns(), seq_start=published)
         with closing(frames):
-            for frame in frames:
+            for source_frame in frames:
+                frame = (
+                    source_frame
+                    if options.compressed is None
+                    else compress_frame(source_frame, options.compressed)
+                )
                 _check_frame_size(frame, published + 1, source, options.max_frame_bytes)
                 if not _send(publisher, frame, pacer=pacer, stop=stop, clock=clock, putter=putter):
                     return published
@@ -336,7 +371,8 @@ def main(
             )
             raise ReplayError(msg)
         log.info(
-            "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d shm=%s",
+            "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d shm=%s "
+            "compressed=%s",
             source.kind,
             source.count if source.count is not None else "unknown",
             options.key,
@@ -344,6 +380,7 @@ def main(
             options.loop,
             options.limit,
             options.shm,
+            options.compressed or "no",
         )
         start = clock()
         stream = progress_stream if progress_stream is not None else sys.stderr
@@ -376,8 +413,15 @@ def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> Repla
         pacing = Pacing.RATE
     else:
         pacing = Pacing.RECORDED
+    compressed: Codec | None = None
+    for codec in CODECS:
+        if args.compressed == codec:
+            compressed = codec
+    key = args.key
+    if key is None:
+        key = DEFAULT_KEY if compressed is None else DEFAULT_COMPRESSED_KEY
     return ReplayOptions(
-        key=args.key,
+        key=key,
         pacing=pacing,
         rate_hz=args.rate,
         loop=args.loop,
@@ -387,4 +431,5 @@ def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> Repla
         progress=stderr_is_tty if args.progress is None else args.progress,
         shm=args.shm,
         max_frame_bytes=args.max_frame_bytes,
+        compressed=compressed,
     )

@@ -12,7 +12,12 @@ import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY, DEFAULT_RATE_HZ
+from zenoh_perception.camera.defaults import (
+    DEFAULT_COMPRESSED_KEY,
+    DEFAULT_FRAME_ID,
+    DEFAULT_KEY,
+    DEFAULT_RATE_HZ,
+)
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
@@ -143,6 +148,52 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.set_defaults(handler=_cmd_status)
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import view  # noqa: PLC0415
+
+    options = view.ViewOptions(
+        key=args.debug_image_key,
+        save=args.save,
+        every_s=args.every,
+        count=args.count,
+        timeout_s=args.timeout,
+    )
+    return view.main(zenoh_config_from_args(args), options, stop_on_signals())
+
+
+def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "view",
+        help="show the annotated debug image (or save it: --save)",
+        description="Subscribe to the debug image (which makes the service draw it) and show it "
+        "in a window; with --save, also write the latest JPEG to a file every --every seconds. "
+        "Without a display (DISPLAY unset, opencv-python-headless) only --save works. "
+        "q in the window quits.",
+    )
+    add_zenoh_arguments(parser)
+    default_key = Settings().debug_image_key
+    parser.add_argument(
+        "--debug-image-key", default=default_key, help=f"debug image key (default: {default_key})"
+    )
+    parser.add_argument(
+        "--save", type=Path, default=None, metavar="PATH", help="write the latest JPEG to PATH"
+    )
+    parser.add_argument(
+        "--every",
+        type=_positive_float,
+        default=1.0,
+        metavar="S",
+        help="with --save: at most one write every S seconds (default 1)",
+    )
+    parser.add_argument(
+        "--count", type=_non_negative_int, default=0, help="exit after N saves (0: never)"
+    )
+    parser.add_argument(
+        "--timeout", type=_positive_float, default=None, metavar="S", help="exit after S seconds"
+    )
+    parser.set_defaults(handler=_cmd_view)
+
+
 def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("demo camera")
     group.add_argument(
@@ -243,7 +294,17 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         help="rosbag2 folder, .mcap / .db3 file, video file, image folder or image file",
     )
     parser.add_argument(
-        "--key", default=DEFAULT_KEY, help=f"key to publish frames on (default: {DEFAULT_KEY})"
+        "--key",
+        default=None,
+        help=f"key to publish frames on (default: {DEFAULT_KEY}, with --compressed "
+        f"{DEFAULT_COMPRESSED_KEY})",
+    )
+    parser.add_argument(
+        "--compressed",
+        choices=("jpeg", "png"),
+        default=None,
+        help="publish sensor_msgs/CompressedImage CDR of this codec, as image_transport's "
+        "compressed plugin does (default: uncompressed frames)",
     )
     parser.add_argument(
         "--topic",
@@ -436,4 +497,5 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], 
     _add_replay,
     _add_probe,
     _add_bench,
+    _add_view,
 )

@@ -46,10 +46,12 @@ from zenoh_perception.errors import (
 from zenoh_perception.pipeline import Analysis, Pipeline
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
+from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.wire.compressed import decode_compressed_cdr
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.frames import (
     Frame,
@@ -86,6 +88,7 @@ class _Arrival:
     wall_ns: int  # time since the epoch
     #: Came on an rmw_zenoh key: sensor_msgs/Image CDR, its attachment rmw_zenoh's own.
     ros_cdr: bool = False
+    compressed: bool = False  # CompressedImage CDR (the compressed camera topic)
 
 
 class PerceptionService:
@@ -100,6 +103,7 @@ class PerceptionService:
         self._ros = RosTransport(session, settings)
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
+        self._ros_outputs = RosOutputs(settings)
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
         self._stop = threading.Event()
@@ -137,7 +141,10 @@ class PerceptionService:
                 version=__version__,
                 zid=self._session.zid(),
                 ros_transport=self.settings.ros_transport,
-                input=self._ros.key("camera"),
+                input=self._ros.key("camera") if self.settings.input_key else "",
+                compressed_input=(
+                    self._ros.key("compressed_camera") if self.settings.compressed_input_key else ""
+                ),
                 tag=self._tag_pub.key,
                 record=self.settings.record_key,
                 detector=self.settings.detector,
@@ -158,7 +165,7 @@ class PerceptionService:
         self._record_pub = session.declare_publisher(
             s.record_key, encoding=MSGPACK_ENCODING, express=True
         )
-        self._declared += [self._tag_pub, self._record_pub]
+        self._declared += [self._tag_pub, self._record_pub, *self._ros_outputs.declare(self._ros)]
         self._debug_pub: TopicPublisher | None = None
         if s.debug_image:
             self._debug_pub = self._ros.publisher("debug_image")
@@ -183,12 +190,16 @@ class PerceptionService:
         for thread in self._threads:
             thread.start()
         # Subscribe last: every frame that arrives finds the pipeline ready.
-        on_camera = self._on_frame
+        on_camera, on_compressed = self._on_frame, self._on_compressed_frame
         if self._ros.rmw_zenoh:
             # raw frames (msgpack attachment) keep coming on the plain key
-            self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
+            if s.input_key:
+                self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
             on_camera = self._on_ros_frame
-        self._declared.append(self._ros.subscribe("camera", on_camera))
+        if s.input_key:
+            self._declared.append(self._ros.subscribe("camera", on_camera))
+        if s.compressed_input_key:
+            self._declared.append(self._ros.subscribe("compressed_camera", on_compressed))
 
     def close(self) -> None:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
@@ -219,6 +230,10 @@ class PerceptionService:
 
     def _on_ros_frame(self, sample: zenoh.Sample) -> None:
         arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), ros_cdr=True)
+        self.stats.on_received(self._mailbox.put(arrival))
+
+    def _on_compressed_frame(self, sample: zenoh.Sample) -> None:
+        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), compressed=True)
         self.stats.on_received(self._mailbox.put(arrival))
 
     def _on_debug_matching(self, status: zenoh.MatchingStatus) -> None:
@@ -326,7 +341,13 @@ class PerceptionService:
         check_payload_size(len(sample.payload), s.max_frame_bytes)
         payload = sample.payload.to_bytes()
         attachment = sample.attachment
-        if attachment is not None and not arrival.ros_cdr:
+        if arrival.compressed:
+            # colour only for a watched debug image; the detector reads grey
+            frame = decode_compressed_cdr(
+                payload, max_pixels=s.max_frame_pixels, grey=not self._debug_watched.is_set()
+            )
+            source = "compressed"
+        elif attachment is not None and not arrival.ros_cdr:
             frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
             source = "raw"
         else:
@@ -370,6 +391,7 @@ class PerceptionService:
             self._publish(self._record_pub, "record", record.to_msgpack())
         except _ENCODE_ERRORS as err:
             self._processing_failed(ProcessingError("encode_record", err))
+        self._publish_ros_outputs(analysis, record.stamp_ns, frame.frame_id)
         self.stats.on_processed(
             latency_ms,
             frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
@@ -403,6 +425,14 @@ class PerceptionService:
                 ),
             )
 
+    def _publish_ros_outputs(self, analysis: Analysis, stamp_ns: int, frame_id: str) -> None:
+        """Every detection and the tags' transforms (see service/ros_outputs.py)."""
+        encoded, failed = self._ros_outputs.encode(analysis, stamp_ns=stamp_ns, frame_id=frame_id)
+        for err in failed:
+            self._processing_failed(err)
+        for output in encoded:
+            self._publish(output.publisher, output.name, output.payload)
+
     def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
         """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
 
@@ -418,7 +448,13 @@ class PerceptionService:
             return
         self._last_debug = now
         try:
-            image = annotate(to_bgr(frame), analysis.tags, analysis.selected)
+            image = annotate(
+                to_bgr(frame),
+                analysis.tags,
+                analysis.selected,
+                intrinsics=self._pipeline.intrinsics,
+                tag_size=self.settings.tag_size_for,
+            )
             payload = bytes(
                 encode_compressed_image(
                     image,

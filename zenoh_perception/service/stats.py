@@ -12,7 +12,7 @@ from typing import Any, Final
 import numpy as np
 
 #: Outputs whose publication failures are counted (see ``ServiceStats.on_publish_error``).
-OUTPUTS: Final = ("tag", "record", "debug_image")
+OUTPUTS: Final = ("tag", "record", "debug_image", "detections", "tf")
 #: Wall-time window of the frame rate, seconds.
 FPS_WINDOW_S: Final = 5.0
 

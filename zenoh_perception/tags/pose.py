@@ -7,7 +7,10 @@ SQPNP's where IPPE_SQUARE's does not reproject onto them.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Final
 
 import cv2
 import numpy as np
@@ -93,3 +96,22 @@ def estimate_pose(
         if best is None or error < best[0]:
             best = (error, pose)
     return None if best is None else best[1]
+
+
+#: Below this rotation angle (radians) sin(angle / 2) / angle is taken from its Taylor series.
+_SMALL_ANGLE: Final = 1e-6
+
+
+def quaternion_from_rvec(rvec: Sequence[float]) -> tuple[float, float, float, float]:
+    """The unit quaternion ``(x, y, z, w)`` (ROS's order, ``w >= 0``) of a Rodrigues rotation
+    vector: axis ``rvec / |rvec|``, angle ``|rvec|`` radians."""
+    rx, ry, rz = (float(v) for v in rvec)
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    half = angle / 2.0
+    # sin(angle / 2) / angle, exact to double precision near 0 as 1/2 - angle^2 / 48
+    scale = 0.5 - angle * angle / 48.0 if angle < _SMALL_ANGLE else math.sin(half) / angle
+    w = math.cos(half)
+    x, y, z = rx * scale, ry * scale, rz * scale
+    if w < 0.0:  # angles past pi: the same rotation with w >= 0
+        x, y, z, w = -x, -y, -z, -w
+    return x, y, z, w

@@ -24,6 +24,28 @@ float32 y_tag_center_pixel
 float32 closeness_metric
 """
 
+#: apriltag_msgs (github.com/christianrauch/apriltag_msgs, version 2.0.1, what apriltag_ros
+#: publishes): the .msg definitions of its three types, by type name. Not in rosbags' stores.
+APRILTAG_MSGS: Final = {
+    "apriltag_msgs/msg/Point": "float64 x\nfloat64 y\n",
+    "apriltag_msgs/msg/AprilTagDetection": """\
+string family
+int32 id
+int32 hamming
+float32 goodness
+float32 decision_margin
+apriltag_msgs/Point centre
+apriltag_msgs/Point[4] corners
+float64[9] homography
+""",
+    "apriltag_msgs/msg/AprilTagDetectionArray": """\
+std_msgs/Header header
+apriltag_msgs/AprilTagDetection[] detections
+""",
+}
+APRILTAG_DETECTION_ARRAY_TYPE: Final = "apriltag_msgs/msg/AprilTagDetectionArray"
+TF_MESSAGE_TYPE: Final = "tf2_msgs/msg/TFMessage"
+
 DEFAULT_ROS_PACKAGE: Final = "mrover"
 IMAGE_TYPE: Final = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE_TYPE: Final = "sensor_msgs/msg/CompressedImage"
@@ -36,13 +58,17 @@ def tag_type_name(package: str = DEFAULT_ROS_PACKAGE) -> str:
 
 
 def make_typestore(package: str = DEFAULT_ROS_PACKAGE) -> Typestore:
-    """A ROS 2 Jazzy typestore with StarterProjectTag registered under ``package``."""
+    """A ROS 2 Jazzy typestore with StarterProjectTag registered under ``package``, and
+    apriltag_msgs."""
     store = get_typestore(Stores.ROS2_JAZZY)
     store.register(get_types_from_msg(STARTER_PROJECT_TAG_MSG, tag_type_name(package)))
+    for name, text in APRILTAG_MSGS.items():
+        store.register(get_types_from_msg(text, name))
     return store
 
 
-#: Shared typestore for the standard types (Image, CompressedImage, CameraInfo) and the tag
+#: Shared typestore for the standard types (Image, CompressedImage, CameraInfo, TFMessage),
+#: apriltag_msgs and the tag
 #: in the default package. The CDR bytes of the tag do not depend on the package name.
 TYPESTORE: Final = make_typestore()
 

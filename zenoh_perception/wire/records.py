@@ -18,6 +18,7 @@ import msgpack
 import numpy as np
 
 from zenoh_perception.errors import MessageDecodeError
+from zenoh_perception.tags.pose import quaternion_from_rvec
 from zenoh_perception.tags.selection import TagMessage, TagObservation
 from zenoh_perception.wire.messages import (
     DEFAULT_ROS_PACKAGE,
@@ -88,7 +89,11 @@ def tag_entry(tag: TagObservation) -> dict[str, Any]:
     if tag.distance_m is not None:
         entry["distance_m"] = float(tag.distance_m)
     if tag.rvec is not None and tag.tvec is not None:
-        entry["pose"] = {"rvec": list(tag.rvec), "tvec": list(tag.tvec)}
+        entry["pose"] = {
+            "rvec": list(tag.rvec),
+            "tvec": list(tag.tvec),
+            "quaternion": list(quaternion_from_rvec(tag.rvec)),
+        }
     return entry
 
 

@@ -14,9 +14,11 @@ from enum import Enum
 from typing import Final
 
 from zenoh_perception.wire.messages import (
+    APRILTAG_DETECTION_ARRAY_TYPE,
     CAMERA_INFO_TYPE,
     COMPRESSED_IMAGE_TYPE,
     IMAGE_TYPE,
+    TF_MESSAGE_TYPE,
     tag_type_name,
 )
 from zenoh_perception.wire.rmw_zenoh import DEFAULT_QOS, SENSOR_DATA_QOS, Qos
@@ -54,6 +56,14 @@ ROS_TOPICS: Final = (
         any_hash=True,
     ),
     RosTopic(
+        "compressed_camera",
+        COMPRESSED_IMAGE_TYPE,
+        "compressed_input_key",
+        Direction.SUBSCRIBE,
+        SENSOR_DATA_QOS,
+        any_hash=True,
+    ),
+    RosTopic(
         "camera_info",
         CAMERA_INFO_TYPE,
         "camera_info_key",
@@ -69,6 +79,14 @@ ROS_TOPICS: Final = (
         Direction.PUBLISH,
         SENSOR_DATA_QOS,
     ),
+    RosTopic(
+        "detections",
+        APRILTAG_DETECTION_ARRAY_TYPE,
+        "detections_key",
+        Direction.PUBLISH,
+        DEFAULT_QOS,
+    ),
+    RosTopic("tf", TF_MESSAGE_TYPE, "tf_key", Direction.PUBLISH, DEFAULT_QOS),
 )
 
 

@@ -1,0 +1,76 @@
+"""The service's ROS 2 outputs beside ``tag``: every detection (AprilTagDetectionArray) and the
+tags' transforms (TFMessage), each an entry of the topic table
+(:data:`~zenoh_perception.wire.ros_topics.ROS_TOPICS`) declared through the ROS transport
+(plain key or rmw_zenoh), and only when its key setting is set."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Final
+
+from zenoh_perception.errors import ProcessingError
+from zenoh_perception.pipeline import Analysis
+from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.detections import DETECTIONS_TOPIC, encode_detections
+from zenoh_perception.wire.tf import TF_TOPIC, encode_tf
+
+#: The outputs, in the order they are published on each frame; each is counted under its role
+#: (publish and processing errors).
+ROS_OUTPUTS: Final = (DETECTIONS_TOPIC, TF_TOPIC)
+
+_ENCODE_ERRORS: Final = (struct.error, ValueError, OverflowError, TypeError)
+
+
+@dataclass(frozen=True, slots=True)
+class Encoded:
+    """One output's payload for one frame."""
+
+    name: str
+    publisher: TopicPublisher
+    payload: bytes
+
+
+class RosOutputs:
+    """Declares the outputs whose key is set, and encodes a frame's payload for each."""
+
+    def __init__(self, settings: Settings) -> None:
+        self._settings = settings
+        self._publishers: dict[str, TopicPublisher] = {}
+
+    def declare(self, transport: RosTransport) -> list[TopicPublisher]:
+        """Declare a publisher per output whose key is set; they are the caller's to undeclare."""
+        for topic in ROS_OUTPUTS:
+            if getattr(self._settings, topic.key_setting):
+                self._publishers[topic.role] = transport.publisher(topic.role, express=True)
+        return list(self._publishers.values())
+
+    def encode(
+        self, analysis: Analysis, *, stamp_ns: int, frame_id: str
+    ) -> tuple[list[Encoded], list[ProcessingError]]:
+        """Each declared output's payload for this frame (TF only when a tag has a pose), and
+        the outputs that failed to encode (stage ``encode_<name>``)."""
+        encoders: dict[str, Callable[[], memoryview | None]] = {
+            DETECTIONS_TOPIC.role: lambda: encode_detections(
+                analysis.tags,
+                family=self._settings.dictionary,
+                stamp_ns=stamp_ns,
+                frame_id=frame_id,
+            ),
+            TF_TOPIC.role: lambda: encode_tf(
+                analysis.tags, prefix=self._settings.tf_prefix, stamp_ns=stamp_ns, frame_id=frame_id
+            ),
+        }
+        encoded: list[Encoded] = []
+        failed: list[ProcessingError] = []
+        for name, publisher in self._publishers.items():
+            try:
+                payload = encoders[name]()
+            except _ENCODE_ERRORS as err:
+                failed.append(ProcessingError(f"encode_{name}", err))
+                continue
+            if payload is not None:
+                encoded.append(Encoded(name, publisher, bytes(payload)))
+        return encoded, failed
