@@ -100,6 +100,15 @@ class ProcessingError(PerceptionError):
         self.stage = stage
 
 
+class JsonPayloadError(MessageDecodeError):
+    """A JSON payload from the network (a status reply) is too large, too deeply nested, not
+    JSON, or holds NaN or Infinity; ``reason`` says which."""
+
+    def __init__(self, reason: str, detail: object) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
 class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
 

@@ -1,0 +1,43 @@
+"""End to end: what a hostile peer, file or flag does to the real CLI. Each case is a finding of
+an attacker's review on loopback: the process must skip and count what it cannot decode, log
+one escaped line per reason, and refuse bad flags and settings with one line and exit 2
+(docs/robustness.md lists every case with its limit and counter)."""
+
+from __future__ import annotations
+
+import zenoh
+
+from tests.helpers import json_objects, open_session, run_cli
+from zenoh_perception.service.node import PerceptionService
+from zenoh_perception.settings import Settings
+
+
+def _rogue_status(session: zenoh.Session, payload: bytes) -> zenoh.Queryable[None]:
+    return session.declare_queryable(
+        "perception/status", lambda query: query.reply("perception/status", payload)
+    )
+
+
+def test_status_skips_and_counts_rogue_replies_and_prints_the_real_service(
+    endpoint: str,
+) -> None:
+    with (
+        open_session(listen=[endpoint]) as session,
+        PerceptionService(session, Settings(stats_interval_s=0.0)),
+        open_session(connect=[endpoint]) as rogue,
+    ):
+        nested = _rogue_status(rogue, b"[" * 200_000 + b"]" * 200_000)
+        nan = _rogue_status(rogue, b'{"zid": "rogue", "x": NaN}')
+        try:
+            result = run_cli("status", "-e", endpoint, "--no-multicast-scouting", "--timeout", "2")
+        finally:
+            nested.undeclare()
+            nan.undeclare()
+        zid = str(session.zid())
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    assert "NaN" not in result.stdout
+    (reply,) = json_objects(result.stdout)
+    assert reply["zid"] == zid
+    assert "too_deep" in result.stderr
+    assert "non_finite" in result.stderr
