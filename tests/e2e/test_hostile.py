@@ -5,9 +5,21 @@ one escaped line per reason, and refuse bad flags and settings with one line and
 
 from __future__ import annotations
 
+import signal
+
 import zenoh
 
-from tests.helpers import json_objects, open_session, run_cli
+from tests.helpers import (
+    OutputLines,
+    json_objects,
+    log_events,
+    open_session,
+    query_status,
+    run_cli,
+    running_cli,
+    wait_for_status,
+    wait_until,
+)
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 
@@ -41,3 +53,40 @@ def test_status_skips_and_counts_rogue_replies_and_prints_the_real_service(
     assert reply["zid"] == zid
     assert "too_deep" in result.stderr
     assert "non_finite" in result.stderr
+
+
+def test_liveliness_spam_is_one_rate_limited_line_and_a_clean_shutdown(endpoint: str) -> None:
+    spam = 10_000
+    with (
+        running_cli(
+            "run",
+            "-l",
+            endpoint,
+            "--no-multicast-scouting",
+            "--stats-interval-s",
+            "0",
+            "--log-interval-s",
+            "3600",
+        ) as proc,
+        open_session(connect=[endpoint]) as attacker,
+    ):
+        wait_for_status(attacker)
+        tokens = [
+            attacker.liveliness().declare_token(f"perception/alive/spam{i}") for i in range(spam)
+        ]
+
+        def counted() -> bool:
+            status = query_status(attacker)
+            return status is not None and status["liveliness"]["other_services"] >= spam
+
+        wait_until(counted, timeout=120, what="every token seen by the service")
+        proc.send_signal(signal.SIGINT)
+        output = OutputLines(proc).rest(timeout=30)
+        for token in tokens:
+            token.undeclare()
+    assert proc.wait(timeout=10) == 0
+    text = "".join(output)
+    # one line for the event within the interval, whatever the names
+    assert len(log_events(text, "another_service")) == 1
+    assert "Traceback" not in text
+    assert "borrowed" not in text

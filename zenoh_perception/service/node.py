@@ -94,6 +94,10 @@ class PerceptionService:
         self.settings = settings
         self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
         self._session = session
+        # Callbacks read the zid from here: asking the session while it closes raises.
+        self._zid = str(session.zid())
+        self._other_tokens = 0
+        self._other_lock = threading.Lock()
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
         self._gate = LogGate(settings.log_interval_s)
@@ -217,13 +221,19 @@ class PerceptionService:
         self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
 
     def _on_service_token(self, sample: zenoh.Sample) -> None:
-        """Another perception service's liveliness token appeared (ours is left out)."""
+        """Another perception service's liveliness token appeared (ours is left out).
+
+        Anyone may declare tokens under the key: one rate limit for the event, whatever the
+        name, and only a count kept.
+        """
         other = str(sample.key_expr).rsplit("/", 1)[-1]
-        if sample.kind != zenoh.SampleKind.PUT or other == str(self._session.zid()):
+        if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
             return
+        with self._other_lock:
+            self._other_tokens += 1
         self._log_limited(
             logging.WARNING,
-            f"another_service:{other}",
+            "another_service",
             "another_service",
             zid=other,
             liveliness=str(sample.key_expr),
@@ -447,9 +457,10 @@ class PerceptionService:
         return {
             "service": "zenoh-perception",
             "version": __version__,
-            "zid": str(self._session.zid()),
+            "zid": self._zid,
             "worker_alive": not self.failed.is_set(),
             **snapshot,
+            "liveliness": {"other_services": self._other_tokens},
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
                 "published": self._debug_images,

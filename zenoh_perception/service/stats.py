@@ -184,11 +184,26 @@ class ServiceStats:
             )
 
 
-class LogGate:
-    """At most one log line per key per ``interval`` s; reports how many were suppressed."""
+#: Keys a :class:`LogGate` remembers at most (keys are events and reasons, a fixed set).
+LOG_GATE_KEYS: Final = 256
 
-    def __init__(self, interval: float, clock: Callable[[], float] = time.monotonic) -> None:
+
+class LogGate:
+    """At most one log line per key per ``interval`` s; reports how many were suppressed.
+
+    It remembers at most ``max_keys`` keys: past that, the oldest is forgotten (its next line
+    is let through), so no stream of new keys grows it for good.
+    """
+
+    def __init__(
+        self,
+        interval: float,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        max_keys: int = LOG_GATE_KEYS,
+    ) -> None:
         self._interval = interval
+        self._max_keys = max_keys
         self._clock = clock
         self._last: dict[str, float] = {}
         self._suppressed: Counter[str] = Counter()
@@ -202,5 +217,10 @@ class LogGate:
             if last is not None and now - last < self._interval:
                 self._suppressed[key] += 1
                 return None
+            self._last.pop(key, None)  # re-inserted last: the dict is oldest first
             self._last[key] = now
+            while len(self._last) > self._max_keys:
+                oldest = next(iter(self._last))
+                del self._last[oldest]
+                self._suppressed.pop(oldest, None)
             return self._suppressed.pop(key, 0)
