@@ -329,7 +329,17 @@ def _validate_intrinsics(settings: Settings) -> None:
         raise SettingsError(msg) from err
 
 
+def _validate_text(settings: Settings) -> None:
+    """No control character in any text setting: keys and names end up in log lines."""
+    for f in fields(Settings):
+        value = getattr(settings, f.name)
+        if isinstance(value, str) and any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value):
+            msg = f"{f.name} = {value!r} holds a control character"
+            raise SettingsError(msg)
+
+
 def _validate(settings: Settings) -> None:
+    _validate_text(settings)
     _validate_keys(settings)
     check_ros_package(settings.ros_package)
     if settings.policy not in tuple(Policy):

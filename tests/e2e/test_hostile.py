@@ -5,8 +5,11 @@ one escaped line per reason, and refuse bad flags and settings with one line and
 
 from __future__ import annotations
 
+import re
 import signal
+from pathlib import Path
 
+import msgpack
 import zenoh
 
 from tests.helpers import (
@@ -18,10 +21,14 @@ from tests.helpers import (
     run_cli,
     running_cli,
     wait_for_status,
+    wait_for_subscriber,
     wait_until,
 )
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
+
+FRAMES = "zed/left/image"
+_BLOCK = zenoh.CongestionControl.BLOCK
 
 
 def _rogue_status(session: zenoh.Session, payload: bytes) -> zenoh.Queryable[None]:
@@ -90,3 +97,37 @@ def test_liveliness_spam_is_one_rate_limited_line_and_a_clean_shutdown(endpoint:
     assert len(log_events(text, "another_service")) == 1
     assert "Traceback" not in text
     assert "borrowed" not in text
+
+
+_CONTROLS = "\x1b[31m\x07\x7f\x9b"
+
+
+def test_control_characters_from_the_network_reach_the_log_escaped(endpoint: str) -> None:
+    with (
+        running_cli(
+            "run", "-l", endpoint, "--no-multicast-scouting", "--stats-interval-s", "0"
+        ) as proc,
+        open_session(connect=[endpoint]) as attacker,
+    ):
+        lines = OutputLines(proc)
+        wait_for_status(attacker)
+        token = attacker.liveliness().declare_token(f"perception/alive/evil{_CONTROLS}")
+        lines.wait_for("event=another_service")
+        attachment = msgpack.packb({"width": 1, "height": 1, "encoding": f"x\x00{_CONTROLS}"})
+        publisher = attacker.declare_publisher(FRAMES, congestion_control=_BLOCK)
+        wait_for_subscriber(publisher)
+        publisher.put(b"\x00" * 4, attachment=attachment)
+        lines.wait_for("reason=unsupported_encoding")
+        token.undeclare()
+    seen = "".join(lines.seen)
+    assert not re.search(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]", seen), repr(seen)
+    assert "\\u001b" in seen  # the escape is written out, not dropped
+
+
+def test_a_control_character_in_a_setting_exits_2_naming_it(tmp_path: Path) -> None:
+    settings = tmp_path / "perception.toml"
+    settings.write_text('tag_key = "tag\\u0000x"\n', encoding="utf-8")
+    result = run_cli("run", "--settings", str(settings), "--no-multicast-scouting", timeout=30)
+    assert result.returncode == 2
+    assert "tag_key" in result.stderr
+    assert "Traceback" not in result.stderr
