@@ -56,7 +56,15 @@ class SizeMismatchError(FrameDecodeError):
 
 
 class MessageDecodeError(PerceptionError):
-    """An output message (tag CDR or perception record) could not be decoded."""
+    """An output message (tag CDR or perception record) could not be decoded; ``reason``
+    says why (``undecodable`` unless a finer reason is given)."""
+
+    reason = "undecodable"
+
+    def __init__(self, *args: object, reason: str | None = None) -> None:
+        super().__init__(*args)
+        if reason is not None:
+            self.reason = reason
 
 
 class PayloadTooLargeError(FrameDecodeError):
@@ -105,8 +113,7 @@ class JsonPayloadError(MessageDecodeError):
     JSON, or holds NaN or Infinity; ``reason`` says which."""
 
     def __init__(self, reason: str, detail: object) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
+        super().__init__(f"{reason}: {detail}", reason=reason)
 
 
 class SessionError(PerceptionError):

@@ -5,6 +5,7 @@ one escaped line per reason, and refuse bad flags and settings with one line and
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 from pathlib import Path
@@ -17,6 +18,7 @@ from tests.helpers import (
     json_objects,
     log_events,
     open_session,
+    parse_pairs,
     query_status,
     run_cli,
     running_cli,
@@ -26,6 +28,8 @@ from tests.helpers import (
 )
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
+from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.records import FrameRecord, TagCodec
 
 FRAMES = "zed/left/image"
 _BLOCK = zenoh.CongestionControl.BLOCK
@@ -131,3 +135,85 @@ def test_a_control_character_in_a_setting_exits_2_naming_it(tmp_path: Path) -> N
     assert result.returncode == 2
     assert "tag_key" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def _record(**changes: object) -> bytes:
+    tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
+    good = FrameRecord(
+        7, "cam", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+    ).to_msgpack()
+    record = msgpack.unpackb(good)
+    record.update(changes)
+    packed: bytes = msgpack.packb(record)
+    return packed
+
+
+def _strict_json(line: str) -> object:
+    def refuse(name: str) -> object:
+        raise AssertionError(f"{name} printed: {line}")
+
+    return json.loads(line, parse_constant=refuse)
+
+
+def test_echo_skips_and_counts_malformed_records_and_prints_only_json(endpoint: str) -> None:
+    bad_records = [
+        _record(tags=5),
+        _record(timing=[1]),
+        _record(selected={"tag_id": "x"}),
+        _record(timing={"latency_ms": float("nan")}),
+        _record(stamp_ns=float("inf")),
+        b"\xc1",
+    ]
+    nan_tag = bytes(TagCodec().encode(TagMessage(1, float("nan"), 2.0, float("inf"))))
+    with (
+        running_cli("echo", "-l", endpoint, "--no-multicast-scouting", "--json") as proc,
+        open_session(connect=[endpoint]) as attacker,
+    ):
+        lines = OutputLines(proc)
+        lines.wait_for("listening")
+        records = attacker.declare_publisher("perception/tags", congestion_control=_BLOCK)
+        tags = attacker.declare_publisher("tag", congestion_control=_BLOCK)
+        wait_for_subscriber(records)
+        wait_for_subscriber(tags)
+        tags.put(nan_tag)
+        for payload in bad_records:
+            records.put(payload)
+        records.put(_record(seq=8))
+        lines.wait_for('"seq": 8')
+        proc.send_signal(signal.SIGINT)
+        lines.rest()
+    assert proc.wait(timeout=10) == 0
+    text = "".join(lines.seen)
+    assert "Traceback" not in text
+    printed = [_strict_json(line) for line in lines.seen if line.startswith("{")]
+    assert [p["seq"] for p in printed if isinstance(p, dict) and "seq" in p] == [8]
+    (summary,) = [line for line in text.splitlines() if line.startswith("echo: skipped=")]
+    assert parse_pairs(summary)["skipped"] == str(len(bad_records) + 1)
+
+
+def test_demo_printer_skips_and_counts_what_is_no_record(endpoint: str) -> None:
+    with (
+        running_cli(
+            "demo",
+            "-l",
+            endpoint,
+            "--no-multicast-scouting",
+            "--stats-interval-s",
+            "0",
+            "--fps",
+            "10",
+        ) as proc,
+        open_session(connect=[endpoint]) as attacker,
+    ):
+        lines = OutputLines(proc)
+        records = attacker.declare_publisher("perception/tags", congestion_control=_BLOCK)
+        wait_for_subscriber(records)
+        records.put(_record(tags=5))
+        records.put(_record(timing={"latency_ms": float("inf")}))
+        lines.wait_for("undecodable")
+        proc.send_signal(signal.SIGINT)
+        lines.rest()
+    text = "".join(lines.seen)
+    assert "Traceback" not in text
+    (summary,) = [line for line in text.splitlines() if line.startswith("demo: skipped=")]
+    assert parse_pairs(summary)["skipped"] == "2"

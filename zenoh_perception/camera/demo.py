@@ -25,10 +25,11 @@ import numpy as np
 import zenoh
 
 from zenoh_perception.camera.shm import ShmPutter
-from zenoh_perception.errors import PayloadTooLargeError, SettingsError
+from zenoh_perception.errors import MessageDecodeError, PayloadTooLargeError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene import CameraModel, MarkerTruth, Scene, SceneGenerator
 from zenoh_perception.service.node import PerceptionService, check_transport_limit
+from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encode_image_cdr
@@ -218,8 +219,17 @@ def main(
             camera()
             return 0
 
+        skipped = Skipped()
+
         def show(sample: zenoh.Sample) -> None:
-            record = decode_record(sample.payload.to_bytes())
+            # anyone may publish on the record key: what is no record is skipped and counted
+            try:
+                record = decode_record(sample.payload.to_bytes())
+            except MessageDecodeError as err:
+                line = skipped.skip(str(sample.key_expr), err, as_json=False)
+                if line is not None:
+                    print(line, file=out, flush=True)
+                return
             with lock:
                 markers = truths.pop(int(record["stamp_ns"]), None)
             lines = [format_decoded_record(str(sample.key_expr), record, as_json=False)]
@@ -234,4 +244,5 @@ def main(
                 stop.wait(0.5 if limit else 0)  # let the last frame's record arrive
             finally:
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
+        print(f"demo: {skipped.summary()}", file=sys.stderr, flush=True)
     return 0
