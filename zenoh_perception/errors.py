@@ -91,6 +91,12 @@ class CameraInfoError(MessageDecodeError):
     reason = "bad_camera_info"
 
 
+class CameraInfoTooLargeError(CameraInfoError):
+    """The CameraInfo payload is larger than any CameraInfo (refused before it is copied)."""
+
+    reason = "camera_info_too_large"
+
+
 class IntrinsicsError(PerceptionError):
     """Camera intrinsics outside plausible bounds (settings or CameraInfo)."""
 

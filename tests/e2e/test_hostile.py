@@ -9,11 +9,15 @@ import json
 import re
 import signal
 from pathlib import Path
+from typing import Any
 
 import msgpack
+import numpy as np
+import pytest
 import zenoh
 
 from tests.helpers import (
+    Collector,
     OutputLines,
     json_objects,
     log_events,
@@ -26,10 +30,13 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
+from zenoh_perception.scene import render_markers
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage, TagObservation
-from zenoh_perception.wire.records import FrameRecord, TagCodec
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, TYPESTORE, header
+from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 
 FRAMES = "zed/left/image"
 _BLOCK = zenoh.CongestionControl.BLOCK
@@ -217,3 +224,76 @@ def test_demo_printer_skips_and_counts_what_is_no_record(endpoint: str) -> None:
     assert "Traceback" not in text
     (summary,) = [line for line in text.splitlines() if line.startswith("demo: skipped=")]
     assert parse_pairs(summary)["skipped"] == "2"
+
+
+def _camera_info_cdr(fx: float, cx: float, cy: float, width: int, height: int) -> bytes:
+    types = TYPESTORE.types
+    info = types[CAMERA_INFO_TYPE](
+        header=header(0, "zed"),
+        height=height,
+        width=width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=np.array([fx, 0, cx, 0, fx, cy, 0, 0, 1], dtype=np.float64),
+        r=np.eye(3).reshape(-1),
+        p=np.zeros(12),
+        binning_x=0,
+        binning_y=0,
+        roi=types["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
+    return bytes(TYPESTORE.serialize_cdr(info, CAMERA_INFO_TYPE))
+
+
+def test_camera_info_is_size_limited_and_applies_only_to_frames_of_its_size(
+    endpoint: str,
+) -> None:
+    width, height = 640, 480
+    # a 100 px tag of 0.2 m seen fronto-parallel by fx=500 is 1.0 m away
+    image = render_markers(
+        width, height, [(5, np.array([[270, 190], [370, 190], [370, 290], [270, 290]]))]
+    )
+    meta = RawFrameMeta(width, height).to_msgpack()
+    with (
+        running_cli(
+            "run",
+            "-l",
+            endpoint,
+            "--no-multicast-scouting",
+            "--stats-interval-s",
+            "0",
+            "--camera-info-key",
+            "zed/left/camera_info",
+            "--tag-size-m",
+            "0.2",
+        ),
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        records = Collector(camera, "perception/tags")
+        frames = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
+        infos = camera.declare_publisher("zed/left/camera_info", congestion_control=_BLOCK)
+        wait_for_subscriber(frames)
+        wait_for_subscriber(infos)
+
+        def camera_info() -> dict[str, Any]:
+            status = query_status(camera)
+            assert status is not None
+            info: dict[str, Any] = status["camera_info"]
+            return info
+
+        def distance() -> object:
+            frames.put(image.tobytes(), attachment=meta)
+            (tag,) = decode_record(records.get(timeout=30).payload)["tags"]
+            return tag.get("distance_m")
+
+        infos.put(b"\x00" * (1 << 20))
+        infos.put(_camera_info_cdr(11000.0, 8191.5, 8191.5, 16384, 16384))
+        wait_until(lambda: camera_info()["received"] == 2, what="two CameraInfo samples")
+        assert camera_info()["rejected_by_reason"] == {"camera_info_too_large": 1}
+        assert distance() is None  # intrinsics for 16384x16384 are not these frames'
+        assert camera_info()["size_mismatch_frames"] == 1
+        infos.put(_camera_info_cdr(500.0, 319.5, 239.5, width, height))
+        wait_until(lambda: camera_info()["received"] == 3, what="the third CameraInfo")
+        assert distance() == pytest.approx(1.0, rel=0.05)

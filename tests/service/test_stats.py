@@ -74,7 +74,11 @@ def test_publish_processing_and_camera_info_counters() -> None:
     status = stats.snapshot().as_dict()
     assert status["publish_errors"] == {"tag": 0, "record": 1, "debug_image": 0}
     assert status["processing_errors"] == {"debug_image": 1}
-    assert status["camera_info"] == {"received": 2, "rejected_by_reason": {"bad_intrinsics": 1}}
+    assert status["camera_info"] == {
+        "received": 2,
+        "rejected_by_reason": {"bad_intrinsics": 1},
+        "size_mismatch_frames": 0,
+    }
     # Neither is a frame: the frame counters stay as they were.
     assert status["frames"] == {"received": 0, "processed": 0, "dropped": 0, "rejected": 0}
 

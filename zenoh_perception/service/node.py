@@ -48,7 +48,8 @@ from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import Settings
-from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.tags.pose import Intrinsics
+from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.frames import (
     Frame,
@@ -99,6 +100,7 @@ class PerceptionService:
         self._other_tokens = 0
         self._other_lock = threading.Lock()
         self._pipeline = Pipeline(settings, detector)
+        self._camera_info: tuple[Intrinsics, tuple[int, int]] | None = None
         self._codec = TagCodec(settings.ros_package)
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
@@ -244,7 +246,8 @@ class PerceptionService:
 
     def _on_camera_info(self, sample: zenoh.Sample) -> None:
         try:
-            intrinsics = decode_camera_info(sample.payload.to_bytes())
+            check_camera_info_size(len(sample.payload))  # before the copy out of Zenoh
+            info = decode_camera_info(sample.payload.to_bytes())
         except (CameraInfoError, IntrinsicsError) as err:
             # Counted apart from frames: a bad CameraInfo is no frame, and the intrinsics in
             # use stay as they were.
@@ -258,8 +261,10 @@ class PerceptionService:
             )
             return
         self.stats.on_camera_info(None)
-        if intrinsics != self._pipeline.intrinsics:
-            self._pipeline.intrinsics = intrinsics
+        intrinsics = info.intrinsics
+        if (intrinsics, (info.width, info.height)) != self._camera_info:
+            self._camera_info = (intrinsics, (info.width, info.height))
+            self._pipeline.use_camera_info(intrinsics, info.width, info.height)
             # A camera whose intrinsics change on every message would flood the log: the
             # line is rate-limited and the status always shows the intrinsics in use.
             self._log_limited(
@@ -270,6 +275,8 @@ class PerceptionService:
                 fy=f"{intrinsics.fy:.2f}",
                 cx=f"{intrinsics.cx:.2f}",
                 cy=f"{intrinsics.cy:.2f}",
+                width=info.width,
+                height=info.height,
             )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
@@ -368,6 +375,16 @@ class PerceptionService:
             self._publish(self._record_pub, "record", record.to_msgpack())
         except _ENCODE_ERRORS as err:
             self._processing_failed(ProcessingError("encode_record", err))
+        if analysis.intrinsics_mismatch:
+            self.stats.on_intrinsics_mismatch()
+            self._log_limited(
+                logging.WARNING,
+                "intrinsics_mismatch",
+                "intrinsics_mismatch",
+                frame=f"{frame.width}x{frame.height}",
+                detail="the CameraInfo in use is for another image size: its intrinsics are "
+                "left out for this frame",
+            )
         self.stats.on_processed(
             latency_ms,
             frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
