@@ -370,6 +370,10 @@ def _field_kind(f: Field[Any]) -> type:
     return tuple  # tag sizes
 
 
+#: A tag id as ``tag_sizes`` keys must write it: decimal, no sign, no leading zero or space.
+_TAG_ID: Final = re.compile(r"0|[1-9][0-9]{0,9}")
+
+
 def _parse_tag_sizes(value: object) -> TagSizes:
     """Accept a TOML table {"3" = 0.2} or a flag string "3=0.2,7=0.1"."""
     items: list[tuple[object, object]]
@@ -382,7 +386,7 @@ def _parse_tag_sizes(value: object) -> TagSizes:
             if not sep:
                 msg = f"tag_sizes entry {part!r} is not ID=SIZE"
                 raise SettingsError(msg)
-            items.append((key, size))
+            items.append((key.strip(), size.strip()))
     elif isinstance(value, tuple | list):
         items = []
         for pair in value:
@@ -393,12 +397,26 @@ def _parse_tag_sizes(value: object) -> TagSizes:
     else:
         msg = f"tag_sizes must be a table of id = size, not {type(value).__name__}"
         raise SettingsError(msg)
-    try:
-        pairs = tuple(sorted((int(str(k)), float(str(v))) for k, v in items))
-    except ValueError as err:
-        msg = f"tag_sizes: {err}"
-        raise SettingsError(msg) from err
-    return pairs
+    pairs: list[tuple[int, float]] = []
+    seen: dict[int, object] = {}
+    for raw_key, raw_size in items:
+        # one spelling per id: "3", "03" and " 3" would otherwise all be id 3
+        if not (isinstance(raw_key, int) and not isinstance(raw_key, bool)) and not (
+            isinstance(raw_key, str) and _TAG_ID.fullmatch(raw_key)
+        ):
+            msg = f"tag_sizes id {raw_key!r} is not a tag id written plainly (0, 1, 2, ...)"
+            raise SettingsError(msg)
+        tag_id = int(raw_key)
+        if tag_id in seen:
+            msg = f"tag_sizes gives id {tag_id} twice ({seen[tag_id]!r} and {raw_key!r})"
+            raise SettingsError(msg)
+        seen[tag_id] = raw_key
+        try:
+            pairs.append((tag_id, float(str(raw_size))))
+        except ValueError as err:
+            msg = f"tag_sizes: {err}"
+            raise SettingsError(msg) from err
+    return tuple(sorted(pairs))
 
 
 def _coerce(f: Field[Any], value: object) -> object:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import re
 import signal
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +36,8 @@ from zenoh_perception.scene import render_markers
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage, TagObservation
-from zenoh_perception.wire.frames import RawFrameMeta
-from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, TYPESTORE, header
+from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, IMAGE_TYPE, TYPESTORE, header
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 
 FRAMES = "zed/left/image"
@@ -297,3 +299,61 @@ def test_camera_info_is_size_limited_and_applies_only_to_frames_of_its_size(
         infos.put(_camera_info_cdr(500.0, 319.5, 239.5, width, height))
         wait_until(lambda: camera_info()["received"] == 3, what="the third CameraInfo")
         assert distance() == pytest.approx(1.0, rel=0.05)
+
+
+def _cdr_frame(*, frame_id: str = "cam", sec: int = 1, nanosec: int = 0) -> bytes:
+    pixels = np.zeros((4, 4, 4), dtype=np.uint8)
+    image: Any = TYPESTORE.deserialize_cdr(encode_image_cdr(pixels, "bgra8"), IMAGE_TYPE)
+    types = TYPESTORE.types
+    image.header = types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
+    return bytes(TYPESTORE.serialize_cdr(image, IMAGE_TYPE))
+
+
+def _equals(get: Callable[[], int], value: int) -> bool:
+    return get() == value
+
+
+def test_unbounded_seq_long_frame_ids_and_bad_nanosec_are_rejected(endpoint: str) -> None:
+    pixels = np.zeros((4, 4, 4), dtype=np.uint8).tobytes()
+    long_id = "f" * 300
+    bad: list[tuple[bytes, bytes | None, str]] = [
+        (pixels, msgpack.packb({"width": 4, "height": 4, "seq": 2**64 - 1}), "bad_attachment"),
+        (pixels, msgpack.packb({"width": 4, "height": 4, "frame_id": long_id}), "bad_attachment"),
+        (_cdr_frame(frame_id=long_id), None, "bad_cdr"),
+        (_cdr_frame(nanosec=1_000_000_000), None, "bad_stamp"),
+    ]
+    with (
+        running_cli("run", "-l", endpoint, "--no-multicast-scouting", "--stats-interval-s", "0"),
+        open_session(connect=[endpoint]) as camera,
+    ):
+        wait_for_status(camera)
+        records = Collector(camera, "perception/tags")
+        frames = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
+        wait_for_subscriber(frames)
+
+        def rejected() -> int:
+            status = query_status(camera)
+            return -1 if status is None else int(status["frames"]["rejected"])
+
+        for count, (payload, attachment, _reason) in enumerate(bad, start=1):
+            frames.put(payload, attachment=attachment)  # one at a time: none dropped
+            wait_until(partial(_equals, rejected, count), what=f"rejection {count}")
+        status = query_status(camera)
+        assert status is not None
+        assert status["rejected_by_reason"] == {"bad_attachment": 2, "bad_cdr": 1, "bad_stamp": 1}
+        assert records.drain() == []
+
+
+@pytest.mark.parametrize("keys", [('"3"', '"03"'), ('"3"', '" 3"'), ('"+3"',)])
+def test_tag_sizes_with_a_duplicate_or_non_canonical_id_exit_2(
+    tmp_path: Path, keys: tuple[str, ...]
+) -> None:
+    settings = tmp_path / "perception.toml"
+    table = ", ".join(f"{key} = 0.{i + 1}" for i, key in enumerate(keys))
+    settings.write_text(f"tag_sizes = {{ {table} }}\n", encoding="utf-8")
+    result = run_cli("run", "--settings", str(settings), "--no-multicast-scouting", timeout=30)
+    assert result.returncode == 2, result.stderr
+    assert "tag_sizes" in result.stderr
+    assert "Traceback" not in result.stderr
