@@ -185,7 +185,8 @@ class Bound:
     text: str | None = None  # how the bounds read when ``high`` depends on the machine
 
     def admits(self, value: float) -> bool:
-        if not math.isfinite(value):
+        # an int is compared as it is: math.isfinite of a 400-digit one overflows
+        if isinstance(value, float) and not math.isfinite(value):
             return False
         return (self.zero is not None and value == 0) or self.low <= value <= self.high
 
@@ -257,6 +258,25 @@ def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
     except zenoh.ZError as err:
         msg = f"{name} = {value!r} is not a valid Zenoh key expression: {zenoh_error_text(err)}"
         raise SettingsError(msg) from err
+
+
+def check_key(name: str, value: str, *, concrete: bool) -> str:
+    """``value`` when it is a Zenoh key expression (without wildcards when ``concrete``: a
+    key published on or served), for a command's key flag named ``name``.
+
+    Raises:
+        SettingsError: empty, a control character, not a key expression, or a wildcard in a
+            concrete key.
+
+    """
+    if not value or any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value):
+        msg = f"{name} = {value!r} must be a non-empty key without control characters"
+        raise SettingsError(msg)
+    _key_expr(name, value)
+    if concrete and ("*" in value or "$" in value):
+        msg = f"{name} = {value!r} must be a concrete key (no '*', '**' or '$*')"
+        raise SettingsError(msg)
+    return value
 
 
 def _validate_keys(settings: Settings) -> None:
@@ -428,7 +448,11 @@ def _coerce(f: Field[Any], value: object) -> object:
             return value
     elif kind is float:
         if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError as err:
+                msg = f"setting {f.name} = {str(value)[:40]}... is too large for a number"
+                raise SettingsError(msg) from err
     elif kind is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
@@ -491,8 +515,11 @@ def _read_settings_file(path: Path) -> dict[str, Any]:
         raise SettingsError(msg) from err
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
+    except ValueError as err:  # TOMLDecodeError, or an integer past Python's digit limit
         msg = f"cannot read settings file {path}: {err}"
+        raise SettingsError(msg) from err
+    except RecursionError as err:  # tomllib recurses once per nested array or table
+        msg = f"cannot read settings file {path}: nested too deeply"
         raise SettingsError(msg) from err
 
 
@@ -574,6 +601,7 @@ __all__ = [
     "Settings",
     "add_settings_arguments",
     "check_bound",
+    "check_key",
     "check_ros_package",
     "load_settings",
     "setting_names",

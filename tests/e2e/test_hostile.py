@@ -13,6 +13,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import cv2
 import msgpack
 import numpy as np
 import pytest
@@ -357,3 +358,62 @@ def test_tag_sizes_with_a_duplicate_or_non_canonical_id_exit_2(
     assert result.returncode == 2, result.stderr
     assert "tag_sizes" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+_NO_PEERS = ("--no-multicast-scouting",)
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (("demo", "--fps", "0.04"), "--fps"),
+        (("demo", "--fps", "nan"), "--fps"),
+        (("demo", "--fps", "inf"), "--fps"),
+        (("demo", "--limit", "9" * 400), "--limit"),
+        (("status", "--timeout", "inf"), "--timeout"),
+        (("echo", "--timeout", "nan"), "--timeout"),
+        (("echo", "--tag-key", "a//b"), "--tag-key"),
+        (("echo", "--record-key", "a//b"), "--record-key"),
+        (("status", "--status-key", "a//b"), "--status-key"),
+        (("replay", "{images}", "--rate", "1e-300"), "--rate"),
+        (("replay", "{images}", "--key", "**"), "--key"),
+        (("replay", "{images}", "--key", "a//b"), "--key"),
+        (("replay", "{images}", "--frame-id", "f" * 300), "--frame-id"),
+        (("bench", "--seed", "-1"), "--seed"),
+        (("run", "--max-frame-pixels", "9" * 400), "max_frame_pixels"),
+        (("run", "--camera-fx", "9" * 400), "camera_fx"),
+    ],
+)
+def test_a_bad_flag_is_one_line_naming_it_and_exit_2(
+    tmp_path: Path, args: tuple[str, ...], named: str
+) -> None:
+    images = tmp_path / "images"
+    images.mkdir()
+    cv2.imwrite(str(images / "a.png"), np.zeros((8, 8, 3), dtype=np.uint8))
+    argv = [arg.replace("{images}", str(images)) for arg in args]
+    result = run_cli(*argv, *_NO_PEERS, timeout=30)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and named in errors[0], result.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "named"),
+    [
+        (f"camera_fx = {'9' * 400}\n", "camera_fx"),
+        (f"max_frame_bytes = {'9' * 400}\n", "max_frame_bytes"),
+        (f"max_frame_bytes = {'9' * 5000}\n", "perception.toml"),
+        ("x = " + "[" * 5000 + "]" * 5000 + "\n", "perception.toml"),
+    ],
+)
+def test_a_bad_settings_file_is_one_line_naming_it_and_exit_2(
+    tmp_path: Path, text: str, named: str
+) -> None:
+    settings = tmp_path / "perception.toml"
+    settings.write_text(text, encoding="utf-8")
+    result = run_cli("run", "--settings", str(settings), *_NO_PEERS, timeout=30)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and named in errors[0], result.stderr

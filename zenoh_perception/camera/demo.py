@@ -48,7 +48,8 @@ def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -
     camera = CameraModel.named(resolution)
     generator = SceneGenerator(camera, dictionary=dictionary, seed=seed)
     for _ in itertools.count():
-        yield from generator.drive(round(DRIVE_SECONDS * fps), fps=fps, speed_mps=0.6)
+        # at least one frame per drive: an empty drive would loop here for ever
+        yield from generator.drive(max(1, round(DRIVE_SECONDS * fps)), fps=fps, speed_mps=0.6)
 
 
 def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:

@@ -41,12 +41,12 @@ from zenoh_perception.camera.sources import (
     ReplayError,
     SourceFrame,
 )
-from zenoh_perception.errors import PayloadTooLargeError
+from zenoh_perception.errors import PayloadTooLargeError, SettingsError
 from zenoh_perception.service.zenoh_args import (
     open_zenoh,
 )
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
-from zenoh_perception.wire.frames import check_payload_size
+from zenoh_perception.wire.frames import MAX_FRAME_ID_CHARS, check_payload_size
 
 log = logging.getLogger("zenoh_perception.camera.replay")
 
@@ -367,6 +367,24 @@ def main(
             shm,
         )
     return 0
+
+
+def check_frame_id(name: str, value: str) -> str:
+    """``value`` when the service would accept it as a frame's ``frame_id``.
+
+    Raises:
+        SettingsError: over MAX_FRAME_ID_CHARS characters, or a control character in it.
+
+    """
+    if len(value) > MAX_FRAME_ID_CHARS or any(
+        ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value
+    ):
+        msg = (
+            f"{name} must be at most {MAX_FRAME_ID_CHARS} characters without control "
+            f"characters (the service rejects other frames), not {len(value)} characters"
+        )
+        raise SettingsError(msg)
+    return value
 
 
 def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> ReplayOptions:

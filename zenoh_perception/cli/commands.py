@@ -7,12 +7,21 @@ the Docker healthcheck runs ``status`` every few seconds.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_KEY, DEFAULT_RATE_HZ
+from zenoh_perception.cli.numbers import (
+    DEMO_MAX_FPS,
+    DEMO_MIN_FPS,
+    MAX_COUNT,
+    MAX_RATE_HZ,
+    MAX_WAIT_S,
+    MIN_RATE_HZ,
+    bounded_float,
+    bounded_int,
+)
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
@@ -21,6 +30,7 @@ from zenoh_perception.settings import (
     Settings,
     add_settings_arguments,
     check_bound,
+    check_key,
     load_settings,
     settings_from_args,
 )
@@ -39,8 +49,8 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 
     return echo.main(
         zenoh_config_from_args(args),
-        tag_key=args.tag_key,
-        record_key=args.record_key,
+        tag_key=check_key("--tag-key", args.tag_key, concrete=False),
+        record_key=check_key("--record-key", args.record_key, concrete=False),
         ros_package=args.ros_package,
         records=not args.tags_only,
         as_json=args.json,
@@ -53,13 +63,11 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 def _cmd_status(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import status  # noqa: PLC0415
 
-    return status.main(zenoh_config_from_args(args), key=args.status_key, timeout=args.timeout)
+    key = check_key("--status-key", args.status_key, concrete=False)
+    return status.main(zenoh_config_from_args(args), key=key, timeout=args.timeout)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.fps <= 0:
-        msg = "--fps must be positive"
-        raise SettingsError(msg)
     from zenoh_perception.camera import demo  # noqa: PLC0415
 
     return demo.main(
@@ -108,8 +116,18 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--ros-package", default="mrover", help="ROS package of the tag type")
     parser.add_argument("--tags-only", action="store_true", help="do not print records")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
-    parser.add_argument("--count", type=int, default=0, help="exit after N lines (0: never)")
-    parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
+    parser.add_argument(
+        "--count",
+        type=bounded_int(0, MAX_COUNT),
+        default=0,
+        help="exit after N lines (0: never)",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=bounded_float(0.001, MAX_WAIT_S),
+        default=None,
+        help="exit after S seconds",
+    )
     parser.set_defaults(handler=_cmd_echo)
 
 
@@ -117,7 +135,12 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
     add_zenoh_arguments(parser)
     parser.add_argument("--status-key", default="perception/status", help="status key")
-    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    parser.add_argument(
+        "--timeout",
+        type=bounded_float(0.001, MAX_WAIT_S),
+        default=2.0,
+        help="seconds to wait (default 2)",
+    )
     parser.set_defaults(handler=_cmd_status)
 
 
@@ -126,32 +149,30 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--resolution", choices=tuple(RESOLUTIONS), default="VGA", help="camera resolution"
     )
-    group.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
+    group.add_argument(
+        "--fps",
+        type=bounded_float(DEMO_MIN_FPS, DEMO_MAX_FPS),
+        default=15.0,
+        help=f"frames per second, [{DEMO_MIN_FPS:g}, {DEMO_MAX_FPS:g}] (default 15)",
+    )
     group.add_argument(
         "--format", choices=("raw", "cdr"), default="raw", help="raw+attachment or Image CDR"
     )
     group.add_argument(
         "--camera-only", action="store_true", help="only publish frames (feed a separate run)"
     )
-    group.add_argument("--limit", type=int, default=0, help="stop after N frames (0: never)")
+    group.add_argument(
+        "--limit",
+        type=bounded_int(0, MAX_COUNT),
+        default=0,
+        help="stop after N frames (0: never)",
+    )
     group.add_argument(
         "--shm",
         action="store_true",
         help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
         "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
     )
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError as err:
-        msg = f"{text!r} is not a number"
-        raise argparse.ArgumentTypeError(msg) from err
-    if not math.isfinite(value) or value <= 0:
-        msg = f"{text!r} is not a positive number"
-        raise argparse.ArgumentTypeError(msg)
-    return value
 
 
 def _max_frame_bytes(text: str) -> int:
@@ -166,22 +187,13 @@ def _max_frame_bytes(text: str) -> int:
     return value
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError as err:
-        msg = f"{text!r} is not an integer"
-        raise argparse.ArgumentTypeError(msg) from err
-    if value < 0:
-        msg = f"{text!r} is negative"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
 def _cmd_replay(args: argparse.Namespace) -> int:
     from zenoh_perception.camera import replay  # noqa: PLC0415
     from zenoh_perception.camera.sources import open_source  # noqa: PLC0415
 
+    # what the service would refuse, or a wildcard to publish on, is refused before anything
+    check_key("--key", args.key, concrete=True)
+    replay.check_frame_id("--frame-id", args.frame_id)
     source = open_source(
         args.path,
         topic=args.topic,
@@ -222,7 +234,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument(
         "--rate",
-        type=_positive_float,
+        type=bounded_float(MIN_RATE_HZ, MAX_RATE_HZ),
         default=None,
         metavar="HZ",
         help="send at HZ frames per second (default: the recorded rate: bag times, video FPS; "
@@ -232,7 +244,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.add_argument("--loop", action="store_true", help="start over at the end")
     parser.add_argument(
         "--limit",
-        type=_non_negative_int,
+        type=bounded_int(0, MAX_COUNT),
         default=0,
         metavar="N",
         help="stop after N frames in total (default 0: no limit)",
@@ -271,7 +283,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     )
     parser.add_argument(
         "--subscriber-timeout",
-        type=_positive_float,
+        type=bounded_float(0.001, MAX_WAIT_S),
         default=None,
         metavar="S",
         help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
@@ -303,12 +315,16 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     parser.add_argument(
         "--plot", type=Path, metavar="PATH", help="write a PNG of latency vs resolution"
     )
-    parser.add_argument("--frames", type=int, help="independent frames per resolution")
-    parser.add_argument("--video-frames", type=int, help="frames of the video drive")
-    parser.add_argument("--seed", type=int, help="scene seed")
+    parser.add_argument(
+        "--frames", type=bounded_int(1, 100_000), help="independent frames per resolution"
+    )
+    parser.add_argument(
+        "--video-frames", type=bounded_int(2, 100_000), help="frames of the video drive"
+    )
+    parser.add_argument("--seed", type=bounded_int(0, 2**32 - 1), help="scene seed")
     parser.add_argument(
         "--passes",
-        type=int,
+        type=bounded_int(1, 1000),
         help="end to end: lockstep passes over each frame set, pooled (full: 3)",
     )
     parser.add_argument(
@@ -338,7 +354,7 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     group.add_argument(
         "--max-video-frames",
-        type=int,
+        type=bounded_int(1, 1_000_000),
         default=600,
         metavar="N",
         help="frames read from each video (default 600)",
