@@ -8,6 +8,9 @@ from __future__ import annotations
 import json
 import re
 import signal
+import struct
+import subprocess
+import zlib
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -18,6 +21,7 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from rosbags.rosbag2 import StoragePlugin, Writer
 
 from tests.helpers import (
     Collector,
@@ -417,3 +421,131 @@ def test_a_bad_settings_file_is_one_line_naming_it_and_exit_2(
     assert "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and named in errors[0], result.stderr
+
+
+def _replay(path: Path, endpoint: str, *extra: str) -> subprocess.CompletedProcess[str]:
+    return run_cli(
+        "replay",
+        str(path),
+        "-e",
+        endpoint,
+        "--no-multicast-scouting",
+        "--subscriber-timeout",
+        "30",
+        *extra,
+        timeout=60,
+    )
+
+
+def test_replay_cuts_a_forward_jump_of_the_recording_clock(tmp_path: Path, endpoint: str) -> None:
+    bag = tmp_path / "jump"
+    pixels = np.zeros((4, 4, 4), dtype=np.uint8)
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        images = writer.add_connection("/zed/left/image", IMAGE_TYPE, typestore=TYPESTORE)
+        for index, received in enumerate((10**9, 2**63 - 10**9)):  # then ~292 years later
+            frame = bytes(encode_image_cdr(pixels, "bgra8", stamp_ns=index + 1, frame_id="c"))
+            writer.write(images, received, frame)
+    with open_session(listen=[endpoint]) as service:
+        frames = Collector(service, FRAMES)
+        result = _replay(bag, endpoint)
+        assert result.returncode == 0, result.stderr
+        assert len(frames.drain()) == 2
+    (capped,) = log_events(result.stderr, "replay_gap_capped")
+    assert float(capped["gap_s"]) > 9e9
+    assert float(capped["waited_s"]) <= 5
+
+
+def _video(path: Path) -> None:
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), 30.0, (64, 48))
+    assert writer.isOpened()
+    try:
+        for index in range(30):
+            writer.write(np.full((48, 64, 3), index * 8, dtype=np.uint8))
+    finally:
+        writer.release()
+
+
+def test_replay_says_what_a_truncated_video_did_not_send(tmp_path: Path, endpoint: str) -> None:
+    video = tmp_path / "truncated.avi"
+    _video(video)
+    data = video.read_bytes()
+    video.write_bytes(data[: len(data) * 7 // 10])  # OpenCV reads 15 of its 30 frames
+    with open_session(listen=[endpoint]) as service:
+        frames = Collector(service, FRAMES)
+        result = _replay(video, endpoint, "--as-fast-as-possible")
+        sent = len(frames.drain())
+    assert result.returncode == 0, result.stderr
+    assert 0 < sent < 30
+    (incomplete,) = log_events(result.stderr, "replay_incomplete")
+    assert (int(incomplete["published"]), int(incomplete["unsent"])) == (sent, 30 - sent)
+
+
+def test_replay_of_a_video_with_no_readable_frame_exits_non_zero(
+    tmp_path: Path, endpoint: str
+) -> None:
+    video = tmp_path / "corrupt.avi"
+    _video(video)
+    data = bytearray(video.read_bytes())
+    # keep the headers that announce 30 frames, spoil every frame after them
+    start = data.find(b"movi") + 4
+    data[start:] = bytes(len(data) - start)
+    video.write_bytes(bytes(data))
+    with open_session(listen=[endpoint]) as service:
+        Collector(service, FRAMES)
+        result = _replay(video, endpoint, "--as-fast-as-possible")
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    assert "sent no frame" in result.stderr
+
+
+def _huge_grey_png(side: int) -> bytes:
+    """A valid PNG of side x side black pixels: a few hundred KB that decode to side**2 B."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+        )
+
+    compressor = zlib.compressobj(9)
+    row = bytes(1 + side)  # filter byte, then grey pixels
+    idat = b"".join(compressor.compress(row) for _ in range(side)) + compressor.flush()
+    ihdr = struct.pack(">IIBBBBB", side, side, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def test_replay_refuses_an_image_by_its_declared_size_before_decoding(
+    tmp_path: Path, endpoint: str
+) -> None:
+    folder = tmp_path / "images"
+    folder.mkdir()
+    (folder / "huge.png").write_bytes(_huge_grey_png(16000))
+    with open_session(listen=[endpoint]) as service:
+        Collector(service, FRAMES)
+        result = _replay(folder, endpoint)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and "huge.png" in errors[0] and "16000x16000" in errors[0]
+
+
+def test_replay_of_a_bit_flipped_bag_is_one_line_and_exit_2(tmp_path: Path, endpoint: str) -> None:
+    bag = tmp_path / "flipped.mcap"
+    pixels = np.zeros((4, 4, 4), dtype=np.uint8)
+    folder = tmp_path / "bag"
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        images = writer.add_connection("/zed/left/image", IMAGE_TYPE, typestore=TYPESTORE)
+        for index in range(3):
+            frame = bytes(encode_image_cdr(pixels, "bgra8", stamp_ns=index + 1, frame_id="c"))
+            writer.write(images, 10**9 + index, frame)
+    data = bytearray(next(folder.glob("*.mcap")).read_bytes())
+    # magic (8 bytes), the header record's opcode (1) and length (8): a flipped top bit of
+    # that length claims 2**62 bytes, which rosbags tries to read at once
+    data[16] ^= 0x40
+    bag.write_bytes(bytes(data))
+    with open_session(listen=[endpoint]) as service:
+        Collector(service, FRAMES)
+        result = _replay(bag, endpoint)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and "flipped.mcap" in errors[0]

@@ -18,6 +18,7 @@ it:
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Generator, Sequence
 from pathlib import Path
 from typing import Final, NamedTuple, Protocol
@@ -30,7 +31,8 @@ from rosbags.rosbag2 import Reader, ReaderError
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_RATE_HZ, DEFAULT_TOPIC
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.wire.frames import MAX_DIMENSION, MAX_PIXELS, RawFrameMeta
+from zenoh_perception.wire.image_header import image_header_size
 from zenoh_perception.wire.messages import IMAGE_TYPE
 
 BAG_SUFFIXES: Final = frozenset({".mcap", ".db3"})
@@ -104,11 +106,25 @@ def _raw_frame(image: npt.ArrayLike, *, stamp_ns: int, seq: int, frame_id: str) 
 # -- rosbag2 ---------------------------------------------------------------------------------
 
 
+#: What rosbags raises on a corrupt bag: a bit flipped in a record's length makes it read (and
+#: try to allocate) that many bytes (MemoryError), overflow a seek (OverflowError) or unpack
+#: a record cut short (struct.error).
+_BAG_ERRORS: Final = (
+    ReaderError,
+    OSError,
+    ValueError,
+    KeyError,
+    MemoryError,
+    OverflowError,
+    struct.error,
+)
+
+
 def _open_reader(path: Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError) as err:
+    except _BAG_ERRORS as err:
         msg = f"cannot read rosbag2 {str(path)!r}: {err}"
         raise ReplayError(msg) from err
     return reader
@@ -185,7 +201,7 @@ class BagSource:
             try:
                 for _conn, timestamp, data in reader.messages(connections=connections):
                     yield SourceFrame(bytes(data), None, int(timestamp))
-            except (ReaderError, OSError, ValueError, KeyError) as err:
+            except _BAG_ERRORS as err:
                 msg = f"cannot read rosbag2 {str(self.path)!r}: {err}"
                 raise ReplayError(msg) from err
         finally:
@@ -279,6 +295,7 @@ class ImageSequenceSource:
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
         frame_id: str = DEFAULT_FRAME_ID,
+        max_pixels: int = MAX_PIXELS,
     ) -> None:
         if not files:
             msg = "no images to replay"
@@ -286,11 +303,17 @@ class ImageSequenceSource:
         self.files = tuple(files)
         self.frame_id = frame_id
         self.rate_hz = rate_hz
+        self.max_pixels = max_pixels
         self._period = _period_ns(rate_hz)
 
     @classmethod
     def from_folder(
-        cls, folder: Path, *, rate_hz: float = DEFAULT_RATE_HZ, frame_id: str = DEFAULT_FRAME_ID
+        cls,
+        folder: Path,
+        *,
+        rate_hz: float = DEFAULT_RATE_HZ,
+        frame_id: str = DEFAULT_FRAME_ID,
+        max_pixels: int = MAX_PIXELS,
     ) -> ImageSequenceSource:
         files = list_images(folder)
         if not files:
@@ -299,7 +322,7 @@ class ImageSequenceSource:
                 f"({', '.join(sorted(IMAGE_SUFFIXES))})"
             )
             raise ReplayError(msg)
-        return cls(files, rate_hz=rate_hz, frame_id=frame_id)
+        return cls(files, rate_hz=rate_hz, frame_id=frame_id, max_pixels=max_pixels)
 
     @property
     def count(self) -> int | None:
@@ -307,7 +330,7 @@ class ImageSequenceSource:
 
     def frames(self, *, epoch_ns: int = 0, seq_start: int = 0) -> Frames:
         for index, path in enumerate(self.files):
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            image = self._read(path)
             if image is None:
                 msg = f"OpenCV cannot read the image {str(path)!r}"
                 raise ReplayError(msg)
@@ -317,6 +340,31 @@ class ImageSequenceSource:
                 seq=seq_start + index,
                 frame_id=self.frame_id,
             )
+
+    def _read(self, path: Path) -> npt.NDArray[np.uint8] | None:
+        """The image at ``path``, decoded only after the size its header declares is checked
+        (a small file may declare a huge image).
+
+        Raises:
+            ReplayError: unreadable, or declaring more than ``max_pixels`` pixels.
+
+        """
+        try:
+            data = path.read_bytes()
+        except OSError as err:
+            msg = f"cannot read the image {str(path)!r}: {err.strerror or err}"
+            raise ReplayError(msg) from err
+        size = image_header_size(data)
+        if size is not None:
+            width, height = size
+            if width > MAX_DIMENSION or height > MAX_DIMENSION or width * height > self.max_pixels:
+                msg = (
+                    f"the image {str(path)!r} declares {width}x{height} pixels, over the "
+                    f"{self.max_pixels} a frame may have (max_frame_bytes / 4): not decoded"
+                )
+                raise ReplayError(msg)
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        return None if image is None else np.asarray(image, dtype=np.uint8)
 
 
 # -- choosing --------------------------------------------------------------------------------
@@ -328,6 +376,7 @@ def open_source(
     topic: str | None = None,
     image_rate_hz: float = DEFAULT_RATE_HZ,
     frame_id: str = DEFAULT_FRAME_ID,
+    max_frame_bytes: int | None = None,
 ) -> FrameSource:
     """The source for ``path``.
 
@@ -350,8 +399,14 @@ def open_source(
     if topic is not None:
         msg = f"a topic applies to rosbag2 sources only, and {str(path)!r} is not a bag"
         raise ReplayError(msg)
+    # an image becomes a BGRA frame: 4 bytes a pixel
+    max_pixels = MAX_PIXELS if max_frame_bytes is None else min(MAX_PIXELS, max_frame_bytes // 4)
     if path.is_dir():
-        return ImageSequenceSource.from_folder(path, rate_hz=image_rate_hz, frame_id=frame_id)
+        return ImageSequenceSource.from_folder(
+            path, rate_hz=image_rate_hz, frame_id=frame_id, max_pixels=max_pixels
+        )
     if suffix in IMAGE_SUFFIXES:
-        return ImageSequenceSource([path], rate_hz=image_rate_hz, frame_id=frame_id)
+        return ImageSequenceSource(
+            [path], rate_hz=image_rate_hz, frame_id=frame_id, max_pixels=max_pixels
+        )
     return VideoSource(path, frame_id=frame_id)

@@ -199,6 +199,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         topic=args.topic,
         image_rate_hz=args.rate if args.rate is not None else DEFAULT_RATE_HZ,
         frame_id=args.frame_id,
+        max_frame_bytes=args.max_frame_bytes,
     )
     options = replay.options_from_args(args, stderr_is_tty=sys.stderr.isatty())
     return replay.main(zenoh_config_from_args(args), source, options, stop_on_signals())
