@@ -31,7 +31,8 @@ from rosbags.rosbag2 import Reader, ReaderError
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_RATE_HZ, DEFAULT_TOPIC
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.wire.frames import MAX_DIMENSION, MAX_PIXELS, RawFrameMeta
+from zenoh_perception.settings import FRAME_LIMITS_HINT
+from zenoh_perception.wire.frames import MAX_DIMENSION, RawFrameMeta
 from zenoh_perception.wire.image_header import image_header_size
 from zenoh_perception.wire.messages import IMAGE_TYPE
 
@@ -295,7 +296,7 @@ class ImageSequenceSource:
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
         frame_id: str = DEFAULT_FRAME_ID,
-        max_pixels: int = MAX_PIXELS,
+        max_frame_bytes: int | None = None,
     ) -> None:
         if not files:
             msg = "no images to replay"
@@ -303,7 +304,7 @@ class ImageSequenceSource:
         self.files = tuple(files)
         self.frame_id = frame_id
         self.rate_hz = rate_hz
-        self.max_pixels = max_pixels
+        self.max_frame_bytes = max_frame_bytes
         self._period = _period_ns(rate_hz)
 
     @classmethod
@@ -313,7 +314,7 @@ class ImageSequenceSource:
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
         frame_id: str = DEFAULT_FRAME_ID,
-        max_pixels: int = MAX_PIXELS,
+        max_frame_bytes: int | None = None,
     ) -> ImageSequenceSource:
         files = list_images(folder)
         if not files:
@@ -322,7 +323,7 @@ class ImageSequenceSource:
                 f"({', '.join(sorted(IMAGE_SUFFIXES))})"
             )
             raise ReplayError(msg)
-        return cls(files, rate_hz=rate_hz, frame_id=frame_id, max_pixels=max_pixels)
+        return cls(files, rate_hz=rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes)
 
     @property
     def count(self) -> int | None:
@@ -330,7 +331,7 @@ class ImageSequenceSource:
 
     def frames(self, *, epoch_ns: int = 0, seq_start: int = 0) -> Frames:
         for index, path in enumerate(self.files):
-            image = self._read(path)
+            image = self._read(path, index + 1)
             if image is None:
                 msg = f"OpenCV cannot read the image {str(path)!r}"
                 raise ReplayError(msg)
@@ -341,12 +342,13 @@ class ImageSequenceSource:
                 frame_id=self.frame_id,
             )
 
-    def _read(self, path: Path) -> npt.NDArray[np.uint8] | None:
-        """The image at ``path``, decoded only after the size its header declares is checked
-        (a small file may declare a huge image).
+    def _read(self, path: Path, number: int) -> npt.NDArray[np.uint8] | None:
+        """The image at ``path`` (frame ``number``), decoded only after the size its header
+        declares is checked (a small file may declare a huge image).
 
         Raises:
-            ReplayError: unreadable, or declaring more than ``max_pixels`` pixels.
+            ReplayError: unreadable, or declaring a frame the service would refuse: larger
+                than MAX_DIMENSION a side or, as BGRA, than ``max_frame_bytes``.
 
         """
         try:
@@ -357,10 +359,19 @@ class ImageSequenceSource:
         size = image_header_size(data)
         if size is not None:
             width, height = size
-            if width > MAX_DIMENSION or height > MAX_DIMENSION or width * height > self.max_pixels:
+            if width > MAX_DIMENSION or height > MAX_DIMENSION:
                 msg = (
-                    f"the image {str(path)!r} declares {width}x{height} pixels, over the "
-                    f"{self.max_pixels} a frame may have (max_frame_bytes / 4): not decoded"
+                    f"frame {number} of the images, {str(path)!r}, declares {width}x{height} "
+                    f"pixels, over {MAX_DIMENSION} a side: not decoded"
+                )
+                raise ReplayError(msg)
+            limit = self.max_frame_bytes
+            if limit is not None and width * height * 4 > limit:  # sent as BGRA
+                msg = (
+                    f"frame {number} of the images is {width * height * 4} bytes, over "
+                    f"max_frame_bytes = {limit}: the service would refuse it; "
+                    f"{FRAME_LIMITS_HINT} ({str(path)!r} declares {width}x{height} pixels: "
+                    "not decoded)"
                 )
                 raise ReplayError(msg)
         image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
@@ -399,14 +410,12 @@ def open_source(
     if topic is not None:
         msg = f"a topic applies to rosbag2 sources only, and {str(path)!r} is not a bag"
         raise ReplayError(msg)
-    # an image becomes a BGRA frame: 4 bytes a pixel
-    max_pixels = MAX_PIXELS if max_frame_bytes is None else min(MAX_PIXELS, max_frame_bytes // 4)
     if path.is_dir():
         return ImageSequenceSource.from_folder(
-            path, rate_hz=image_rate_hz, frame_id=frame_id, max_pixels=max_pixels
+            path, rate_hz=image_rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes
         )
     if suffix in IMAGE_SUFFIXES:
         return ImageSequenceSource(
-            [path], rate_hz=image_rate_hz, frame_id=frame_id, max_pixels=max_pixels
+            [path], rate_hz=image_rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes
         )
     return VideoSource(path, frame_id=frame_id)
