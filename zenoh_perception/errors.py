@@ -81,7 +81,15 @@ class CorruptImageError(FrameDecodeError):
 
 
 class MessageDecodeError(PerceptionError):
-    """An output message (tag CDR or perception record) could not be decoded."""
+    """An output message (tag CDR or perception record) could not be decoded; ``reason``
+    says why (``undecodable`` unless a finer reason is given)."""
+
+    reason = "undecodable"
+
+    def __init__(self, *args: object, reason: str | None = None) -> None:
+        super().__init__(*args)
+        if reason is not None:
+            self.reason = reason
 
 
 class RmwZenohError(MessageDecodeError):
@@ -114,6 +122,12 @@ class CameraInfoError(MessageDecodeError):
     reason = "bad_camera_info"
 
 
+class CameraInfoTooLargeError(CameraInfoError):
+    """The CameraInfo payload is larger than any CameraInfo (refused before it is copied)."""
+
+    reason = "camera_info_too_large"
+
+
 class IntrinsicsError(PerceptionError):
     """Camera intrinsics outside plausible bounds (settings or CameraInfo)."""
 
@@ -129,6 +143,14 @@ class ProcessingError(PerceptionError):
     def __init__(self, stage: str, detail: object) -> None:
         super().__init__(f"{stage}: {detail}")
         self.stage = stage
+
+
+class JsonPayloadError(MessageDecodeError):
+    """A JSON payload from the network (a status reply) is too large, too deeply nested, not
+    JSON, or holds NaN or Infinity; ``reason`` says which."""
+
+    def __init__(self, reason: str, detail: object) -> None:
+        super().__init__(f"{reason}: {detail}", reason=reason)
 
 
 class SessionError(PerceptionError):

@@ -37,6 +37,9 @@ class Analysis:
     selected: TagMessage
     convert_ms: float
     detect_ms: float
+    #: The frame is not of the size of the CameraInfo whose intrinsics are in use: they were
+    #: left out for it.
+    intrinsics_mismatch: bool = False
 
 
 def observe(
@@ -110,7 +113,9 @@ class TagFinder:
 class Pipeline:
     """Turns decoded frames into an :class:`Analysis`.
 
-    ``intrinsics`` starts from the settings and may be replaced at run time (CameraInfo).
+    ``intrinsics`` starts from the settings and may be replaced at run time (CameraInfo,
+    :meth:`use_camera_info`): a CameraInfo's intrinsics are applied only to frames of its
+    image size.
     """
 
     def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
@@ -122,19 +127,41 @@ class Pipeline:
                 settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
             )
         self._finder = TagFinder(detector, settings.min_tag_side_px)
-        self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
+        # one attribute, replaced whole: a frame never sees intrinsics with another's size
+        self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
+            intrinsics_from_settings(settings),
+            None,
+        )
         self._policy = Policy(settings.policy)
+
+    @property
+    def intrinsics(self) -> Intrinsics | None:
+        return self._camera[0]
+
+    @intrinsics.setter
+    def intrinsics(self, intrinsics: Intrinsics | None) -> None:
+        """Intrinsics for frames of any size (as from the settings)."""
+        self._camera = (intrinsics, None)
+
+    def use_camera_info(self, intrinsics: Intrinsics, width: int, height: int) -> None:
+        """Intrinsics for frames of ``width`` x ``height`` only (a CameraInfo's)."""
+        self._camera = (intrinsics, (width, height))
 
     def process(self, frame: Frame) -> Analysis:
         start = time.perf_counter()
         detections, convert_s = self._finder.find(frame)
         detected = time.perf_counter()
         width, height = frame.width, frame.height
-        tags = tuple(observe(d, width, height, self.settings, self.intrinsics) for d in detections)
+        intrinsics, size = self._camera
+        mismatch = intrinsics is not None and size is not None and size != (width, height)
+        if mismatch:
+            intrinsics = None
+        tags = tuple(observe(d, width, height, self.settings, intrinsics) for d in detections)
         selected = selected_message(tags, width, height, self._policy)
         return Analysis(
             tags=tags,
             selected=selected,
             convert_ms=convert_s * 1e3,
             detect_ms=(detected - start - convert_s) * 1e3,
+            intrinsics_mismatch=mismatch,
         )

@@ -232,7 +232,8 @@ class Bound:
     text: str | None = None  # how the bounds read when ``high`` depends on the machine
 
     def admits(self, value: float) -> bool:
-        if not math.isfinite(value):
+        # an int is compared as it is: math.isfinite of a 400-digit one overflows
+        if isinstance(value, float) and not math.isfinite(value):
             return False
         return (self.zero is not None and value == 0) or self.low <= value <= self.high
 
@@ -310,6 +311,25 @@ def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
     except zenoh.ZError as err:
         msg = f"{name} = {value!r} is not a valid Zenoh key expression: {zenoh_error_text(err)}"
         raise SettingsError(msg) from err
+
+
+def check_key(name: str, value: str, *, concrete: bool) -> str:
+    """``value`` when it is a Zenoh key expression (without wildcards when ``concrete``: a
+    key published on or served), for a command's key flag named ``name``.
+
+    Raises:
+        SettingsError: empty, a control character, not a key expression, or a wildcard in a
+            concrete key.
+
+    """
+    if not value or any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value):
+        msg = f"{name} = {value!r} must be a non-empty key without control characters"
+        raise SettingsError(msg)
+    _key_expr(name, value)
+    if concrete and ("*" in value or "$" in value):
+        msg = f"{name} = {value!r} must be a concrete key (no '*', '**' or '$*')"
+        raise SettingsError(msg)
+    return value
 
 
 def _validate_keys(settings: Settings) -> None:
@@ -424,7 +444,17 @@ def _validate_ros(settings: Settings) -> None:
             raise SettingsError(msg)
 
 
+def _validate_text(settings: Settings) -> None:
+    """No control character in any text setting: keys and names end up in log lines."""
+    for f in fields(Settings):
+        value = getattr(settings, f.name)
+        if isinstance(value, str) and any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value):
+            msg = f"{f.name} = {value!r} holds a control character"
+            raise SettingsError(msg)
+
+
 def _validate(settings: Settings) -> None:
+    _validate_text(settings)
     _validate_keys(settings)
     check_ros_package(settings.ros_package)
     _validate_ros(settings)
@@ -462,6 +492,10 @@ def _field_kind(f: Field[Any]) -> type:
     return tuple  # tag sizes
 
 
+#: A tag id as ``tag_sizes`` keys must write it: decimal, no sign, no leading zero or space.
+_TAG_ID: Final = re.compile(r"0|[1-9][0-9]{0,9}")
+
+
 def _parse_tag_sizes(value: object) -> TagSizes:
     """Accept a TOML table {"3" = 0.2} or a flag string "3=0.2,7=0.1"."""
     items: list[tuple[object, object]]
@@ -474,7 +508,7 @@ def _parse_tag_sizes(value: object) -> TagSizes:
             if not sep:
                 msg = f"tag_sizes entry {part!r} is not ID=SIZE"
                 raise SettingsError(msg)
-            items.append((key, size))
+            items.append((key.strip(), size.strip()))
     elif isinstance(value, tuple | list):
         items = []
         for pair in value:
@@ -485,12 +519,26 @@ def _parse_tag_sizes(value: object) -> TagSizes:
     else:
         msg = f"tag_sizes must be a table of id = size, not {type(value).__name__}"
         raise SettingsError(msg)
-    try:
-        pairs = tuple(sorted((int(str(k)), float(str(v))) for k, v in items))
-    except ValueError as err:
-        msg = f"tag_sizes: {err}"
-        raise SettingsError(msg) from err
-    return pairs
+    pairs: list[tuple[int, float]] = []
+    seen: dict[int, object] = {}
+    for raw_key, raw_size in items:
+        # one spelling per id: "3", "03" and " 3" would otherwise all be id 3
+        if not (isinstance(raw_key, int) and not isinstance(raw_key, bool)) and not (
+            isinstance(raw_key, str) and _TAG_ID.fullmatch(raw_key)
+        ):
+            msg = f"tag_sizes id {raw_key!r} is not a tag id written plainly (0, 1, 2, ...)"
+            raise SettingsError(msg)
+        tag_id = int(raw_key)
+        if tag_id in seen:
+            msg = f"tag_sizes gives id {tag_id} twice ({seen[tag_id]!r} and {raw_key!r})"
+            raise SettingsError(msg)
+        seen[tag_id] = raw_key
+        try:
+            pairs.append((tag_id, float(str(raw_size))))
+        except ValueError as err:
+            msg = f"tag_sizes: {err}"
+            raise SettingsError(msg) from err
+    return tuple(sorted(pairs))
 
 
 def _coerce(f: Field[Any], value: object) -> object:
@@ -502,7 +550,11 @@ def _coerce(f: Field[Any], value: object) -> object:
             return value
     elif kind is float:
         if isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError as err:
+                msg = f"setting {f.name} = {str(value)[:40]}... is too large for a number"
+                raise SettingsError(msg) from err
     elif kind is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
@@ -542,8 +594,11 @@ def _read_settings_file(path: Path) -> dict[str, Any]:
     check_nesting(text, f"settings file {path}")
     try:
         return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
+    except ValueError as err:  # TOMLDecodeError, or an integer past Python's digit limit
         msg = f"cannot read settings file {path}: {err}"
+        raise SettingsError(msg) from err
+    except RecursionError as err:  # tomllib recurses once per nested array or table
+        msg = f"cannot read settings file {path}: nested too deeply"
         raise SettingsError(msg) from err
 
 
@@ -625,6 +680,7 @@ __all__ = [
     "Settings",
     "add_settings_arguments",
     "check_bound",
+    "check_key",
     "check_ros_package",
     "load_settings",
     "setting_names",

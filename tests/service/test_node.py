@@ -324,6 +324,7 @@ def test_implausible_camera_info_is_counted_and_ignored(endpoint: str) -> None:
         assert camera_info() == {
             "received": 3,
             "rejected_by_reason": {"bad_intrinsics": 2, "bad_camera_info": 1},
+            "size_mismatch_frames": 0,
             "intrinsics": None,
         }
         rig.put_raw(SCENE)

@@ -80,7 +80,11 @@ def test_publish_processing_and_camera_info_counters() -> None:
         "tf": 0,
     }
     assert status["processing_errors"] == {"debug_image": 1}
-    assert status["camera_info"] == {"received": 2, "rejected_by_reason": {"bad_intrinsics": 1}}
+    assert status["camera_info"] == {
+        "received": 2,
+        "rejected_by_reason": {"bad_intrinsics": 1},
+        "size_mismatch_frames": 0,
+    }
     # Neither is a frame: the frame counters stay as they were.
     assert status["frames"] == {"received": 0, "processed": 0, "dropped": 0, "rejected": 0}
 
@@ -151,3 +155,12 @@ def test_a_fresh_service_reports_zeros() -> None:
     assert status["latency_ms"] == {"p50": 0.0, "p99": 0.0, "mean": 0.0}
     assert (status["fps"], status["uptime_s"]) == (0.0, 0.0)
     assert status["budget"]["frame_budget_ms"] is None
+
+
+def test_log_gate_forgets_its_oldest_key_past_max_keys() -> None:
+    gate = LogGate(5.0, clock=lambda: 0.0, max_keys=3)
+    for key in ("a", "b", "c", "d"):
+        assert gate.admit(key) == 0
+    assert len(gate._last) == 3  # the bound is the point
+    assert gate.admit("a") == 0  # forgotten: let through again
+    assert gate.admit("d") is None  # remembered: still limited

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from zenoh_perception.errors import CameraInfoError, IntrinsicsError
 from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.wire.camera_info import MAX_CAMERA_INFO_BYTES, decode_camera_info
 from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, TYPESTORE, header
 
 
@@ -50,9 +50,9 @@ def test_the_k_matrix_gives_the_intrinsics(little_endian: bool) -> None:
     hd720 = camera_info_cdr(
         700.5, 701.25, 640.0, 360.5, width=1280, height=720, little_endian=little_endian
     )
-    assert decode_camera_info(hd720) == Intrinsics(700.5, 701.25, 640.0, 360.5)
+    assert decode_camera_info(hd720).intrinsics == Intrinsics(700.5, 701.25, 640.0, 360.5)
     vga = camera_info_cdr(500.0, 500.0, 319.5, 239.5, little_endian=little_endian)
-    assert decode_camera_info(memoryview(vga)) == Intrinsics(500.0, 500.0, 319.5, 239.5)
+    assert decode_camera_info(memoryview(vga)).intrinsics == Intrinsics(500.0, 500.0, 319.5, 239.5)
 
 
 @pytest.mark.parametrize(
@@ -86,7 +86,7 @@ def test_what_is_not_camera_info_is_refused(payload: bytes) -> None:
 @given(st.binary(max_size=512))
 def test_any_bytes_give_intrinsics_or_a_typed_error(payload: bytes) -> None:
     try:
-        got = decode_camera_info(payload)
+        got = decode_camera_info(payload).intrinsics
     except (CameraInfoError, IntrinsicsError):
         return
     assert all(np.isfinite([got.fx, got.fy, got.cx, got.cy]))
@@ -102,8 +102,19 @@ def test_mutated_camera_info_gives_intrinsics_or_a_typed_error(data: st.DataObje
         index = data.draw(st.integers(min_value=0, max_value=len(raw) - 1))
         raw[index] = data.draw(st.integers(min_value=0, max_value=255))
     try:
-        got = decode_camera_info(bytes(raw))
+        got = decode_camera_info(bytes(raw)).intrinsics
     except (CameraInfoError, IntrinsicsError):
         return
     # whatever is accepted passed the plausibility check
     assert got.fx > 0 and got.fy > 0 and np.isfinite(got.cx) and np.isfinite(got.cy)
+
+
+def test_the_image_size_comes_with_the_intrinsics() -> None:
+    info = decode_camera_info(camera_info_cdr(700.5, 701.25, 640.0, 360.5, width=1280, height=720))
+    assert (info.width, info.height) == (1280, 720)
+
+
+def test_a_payload_larger_than_any_camera_info_is_refused_unread() -> None:
+    with pytest.raises(CameraInfoError) as info:
+        decode_camera_info(b"\x00" * (MAX_CAMERA_INFO_BYTES + 1))
+    assert info.value.reason == "camera_info_too_large"

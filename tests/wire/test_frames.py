@@ -197,7 +197,7 @@ def test_negative_stamps_are_refused_raw_and_cdr_alike() -> None:
 
 
 def test_attachment_roundtrip_keeps_every_field() -> None:
-    meta = RawFrameMeta(1280, 720, "rgb8", step=3840, stamp_ns=1, frame_id="zed", seq=-3)
+    meta = RawFrameMeta(1280, 720, "rgb8", step=3840, stamp_ns=1, frame_id="zed", seq=3)
     assert decode_attachment(meta.to_msgpack()) == meta
 
 

@@ -31,6 +31,7 @@ from zenoh_perception.wire.records import (
     f32,
     message_fields,
 )
+from zenoh_perception.wire.text import format_decoded_record
 
 SCHEMAS = REPO / "schemas"
 
@@ -351,3 +352,40 @@ def test_any_bytes_decode_to_a_tag_or_the_decode_error(payload: bytes) -> None:
         return
     assert len(payload) >= TAG_CDR_SIZE
     assert -(2**31) <= tag.tag_id < 2**31
+
+
+_MSGPACK_VALUES = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(2**63), 2**64 - 1)
+    | st.floats()
+    | st.text()
+    | st.binary(max_size=4),
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=3), inner, max_size=3)
+    ),
+    max_leaves=12,
+)
+
+
+@given(
+    changes=st.dictionaries(
+        st.sampled_from(["stamp_ns", "seq", "width", "frame_id", "selected", "tags", "timing"]),
+        _MSGPACK_VALUES,
+        max_size=3,
+    )
+)
+def test_a_decoded_record_always_prints_as_strict_json(changes: dict[str, object]) -> None:
+    tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
+    record = msgpack.unpackb(
+        FrameRecord(
+            7, "c", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+        ).to_msgpack()
+    )
+    record.update(changes)
+    try:
+        decoded = decode_record(msgpack.packb(record))
+    except MessageDecodeError:
+        return
+    json.dumps(decoded, allow_nan=False)
+    format_decoded_record("k", decoded, as_json=False)

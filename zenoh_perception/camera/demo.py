@@ -27,7 +27,7 @@ import numpy as np
 import zenoh
 
 from zenoh_perception.camera.shm import ShmPutter
-from zenoh_perception.errors import PayloadTooLargeError, SettingsError
+from zenoh_perception.errors import MessageDecodeError, PayloadTooLargeError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene import (
     CameraModel,
@@ -37,6 +37,7 @@ from zenoh_perception.scene import (
     SceneGenerator,
 )
 from zenoh_perception.service.node import PerceptionService, check_transport_limit
+from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encode_image_cdr
@@ -57,9 +58,10 @@ def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -
     camera = CameraModel.named(resolution)
     generator = SceneGenerator(camera, dictionary=dictionary, seed=seed)
     for _ in itertools.count():
-        # tags large enough to be read from most of the drive; the far ones are said to be
+        # tags large enough to be read from most of the drive; the far ones are said to be;
+        # at least one frame per drive: an empty drive would loop here for ever
         yield from generator.drive(
-            round(DRIVE_SECONDS * fps), fps=fps, speed_mps=0.6, size_m=DEMO_TAG_SIZE_M
+            max(1, round(DRIVE_SECONDS * fps)), fps=fps, speed_mps=0.6, size_m=DEMO_TAG_SIZE_M
         )
 
 
@@ -331,9 +333,17 @@ def main(
             return 0
 
         summary = Summary()
+        skipped = Skipped()
 
         def show(sample: zenoh.Sample) -> None:
-            record = decode_record(sample.payload.to_bytes())
+            # anyone may publish on the record key: what is no record is skipped and counted
+            try:
+                record = decode_record(sample.payload.to_bytes())
+            except MessageDecodeError as err:
+                line = skipped.skip(str(sample.key_expr), err, as_json=False)
+                if line is not None:
+                    print(line, file=out, flush=True)
+                return
             with lock:
                 scene = truths.pop(int(record["stamp_ns"]), None)
             lines = [format_decoded_record(str(sample.key_expr), record, as_json=False)]
@@ -354,4 +364,5 @@ def main(
                 subscriber.undeclare()  # type: ignore[no-untyped-call]
             with lock:
                 print(summary.format(sent), file=out, flush=True)
+        print(f"demo: {skipped.summary()}", file=sys.stderr, flush=True)
     return 0

@@ -45,13 +45,18 @@ from zenoh_perception.camera.sources import (
     ReplayError,
     SourceFrame,
 )
-from zenoh_perception.errors import FrameDecodeError, PayloadTooLargeError
+from zenoh_perception.errors import FrameDecodeError, PayloadTooLargeError, SettingsError
 from zenoh_perception.service.zenoh_args import (
     open_zenoh,
 )
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.wire.compressed import CODECS, Codec, encode_compressed_frame
-from zenoh_perception.wire.frames import check_payload_size, decode_image_cdr, decode_raw_frame
+from zenoh_perception.wire.frames import (
+    MAX_FRAME_ID_CHARS,
+    check_payload_size,
+    decode_image_cdr,
+    decode_raw_frame,
+)
 
 log = logging.getLogger("zenoh_perception.camera.replay")
 
@@ -71,6 +76,10 @@ class Pacing(StrEnum):
 # -- pure: pacing ----------------------------------------------------------------------------
 
 
+#: Longest wait between two frames of a recording, s: a longer recorded gap is cut to it.
+MAX_GAP_S: Final = 5.0
+
+
 class Pacer:
     """When each frame is due, on a monotonic clock in seconds read by the caller.
 
@@ -82,7 +91,12 @@ class Pacer:
     """
 
     def __init__(
-        self, pacing: Pacing, rate_hz: float | None = None, *, max_lag_s: float = 1.0
+        self,
+        pacing: Pacing,
+        rate_hz: float | None = None,
+        *,
+        max_lag_s: float = 1.0,
+        max_gap_s: float = MAX_GAP_S,
     ) -> None:
         if pacing is Pacing.RATE and (
             rate_hz is None or not math.isfinite(rate_hz) or rate_hz <= 0
@@ -92,6 +106,10 @@ class Pacer:
         self.pacing = pacing
         self._period_s = 1.0 / rate_hz if rate_hz else 0.0
         self._max_lag_s = max_lag_s
+        self._max_gap_s = max_gap_s
+        #: Recorded gaps longer than ``max_gap_s`` that were cut to it, and the last one, s.
+        self.capped_gaps = 0
+        self.last_gap_s = 0.0
         self._anchor_s: float | None = None
         self._anchor_stamp = 0
         self._count = 0
@@ -107,6 +125,15 @@ class Pacer:
             self._reanchor(now, stamp_ns)
         elif self.pacing is Pacing.RECORDED and stamp_ns < self._last_stamp:
             self._reanchor(max(now, self._last_due + self._interval_s), stamp_ns)
+        elif (
+            self.pacing is Pacing.RECORDED
+            and (gap_s := (stamp_ns - self._last_stamp) / 1e9) > self._max_gap_s
+        ):
+            # a recording clock that jumps forward (a paused recorder, a corrupt time) would
+            # hold the next frame back for as long: the wait is cut to max_gap_s
+            self._reanchor(self._last_due + self._max_gap_s, stamp_ns)
+            self.capped_gaps += 1
+            self.last_gap_s = gap_s
         due = self._target(stamp_ns)
         if due < now - self._max_lag_s:
             self._reanchor(now, stamp_ns)
@@ -322,7 +349,15 @@ def _send(
 ) -> bool:
     """Wait until ``frame`` is due, then put it (from shared memory with ``putter``); False
     when stopped first."""
+    capped = pacer.capped_gaps
     delay = pacer.due(frame.stamp_ns, clock()) - clock()
+    if pacer.capped_gaps != capped:
+        log.warning(
+            "event=replay_gap_capped gap_s=%.3f waited_s=%.1f detail=%s",
+            pacer.last_gap_s,
+            MAX_GAP_S,
+            '"the recording\'s clock jumps forward: the wait is cut"',
+        )
     if (delay > 0 and stop.wait(delay)) or stop.is_set():
         return False
     payload = frame.payload if putter is None else putter.load(frame.payload)
@@ -391,6 +426,7 @@ def main(
         )
         if progress is not None:
             progress.finish(published, clock())
+        _report_shortfall(source, options, published, total, stopped=stop.is_set())
         shm = (
             ""
             if putter is None
@@ -404,6 +440,58 @@ def main(
             shm,
         )
     return 0
+
+
+def check_frame_id(name: str, value: str) -> str:
+    """``value`` when the service would accept it as a frame's ``frame_id``.
+
+    Raises:
+        SettingsError: over MAX_FRAME_ID_CHARS characters, or a control character in it.
+
+    """
+    if len(value) > MAX_FRAME_ID_CHARS or any(
+        ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value
+    ):
+        msg = (
+            f"{name} must be at most {MAX_FRAME_ID_CHARS} characters without control "
+            f"characters (the service rejects other frames), not {len(value)} characters"
+        )
+        raise SettingsError(msg)
+    return value
+
+
+def _report_shortfall(
+    source: FrameSource,
+    options: ReplayOptions,
+    published: int,
+    total: int | None,
+    *,
+    stopped: bool,
+) -> None:
+    """Say which frames were not sent and why; nothing sent at all is an error.
+
+    Raises:
+        ReplayError: not stopped, and not one frame could be read from the source.
+
+    """
+    if stopped:
+        return
+    if published == 0:
+        msg = (
+            f"sent no frame: the {source.kind} yielded none "
+            f"(announced: {source.count if source.count is not None else 'unknown'}); "
+            "is it empty, truncated or corrupt?"
+        )
+        raise ReplayError(msg)
+    if total is not None and not options.loop and published < total:
+        log.warning(
+            "event=replay_incomplete published=%d announced=%d unsent=%d detail=%s",
+            published,
+            total,
+            total - published,
+            f'"the {source.kind} ended early: the frames after {published} could not be read '
+            '(truncated or corrupt)"',
+        )
 
 
 def options_from_args(args: argparse.Namespace, *, stderr_is_tty: bool) -> ReplayOptions:

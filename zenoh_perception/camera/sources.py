@@ -18,6 +18,7 @@ it:
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Generator, Sequence
 from pathlib import Path
 from typing import Final, NamedTuple, Protocol
@@ -30,7 +31,9 @@ from rosbags.rosbag2 import Reader, ReaderError
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_RATE_HZ, DEFAULT_TOPIC
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception.settings import FRAME_LIMITS_HINT
+from zenoh_perception.wire.frames import MAX_DIMENSION, RawFrameMeta
+from zenoh_perception.wire.image_header import image_header_size
 from zenoh_perception.wire.messages import IMAGE_TYPE
 
 BAG_SUFFIXES: Final = frozenset({".mcap", ".db3"})
@@ -104,11 +107,25 @@ def _raw_frame(image: npt.ArrayLike, *, stamp_ns: int, seq: int, frame_id: str) 
 # -- rosbag2 ---------------------------------------------------------------------------------
 
 
+#: What rosbags raises on a corrupt bag: a bit flipped in a record's length makes it read (and
+#: try to allocate) that many bytes (MemoryError), overflow a seek (OverflowError) or unpack
+#: a record cut short (struct.error).
+_BAG_ERRORS: Final = (
+    ReaderError,
+    OSError,
+    ValueError,
+    KeyError,
+    MemoryError,
+    OverflowError,
+    struct.error,
+)
+
+
 def _open_reader(path: Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError) as err:
+    except _BAG_ERRORS as err:
         msg = f"cannot read rosbag2 {str(path)!r}: {err}"
         raise ReplayError(msg) from err
     return reader
@@ -185,7 +202,7 @@ class BagSource:
             try:
                 for _conn, timestamp, data in reader.messages(connections=connections):
                     yield SourceFrame(bytes(data), None, int(timestamp))
-            except (ReaderError, OSError, ValueError, KeyError) as err:
+            except _BAG_ERRORS as err:
                 msg = f"cannot read rosbag2 {str(self.path)!r}: {err}"
                 raise ReplayError(msg) from err
         finally:
@@ -279,6 +296,7 @@ class ImageSequenceSource:
         *,
         rate_hz: float = DEFAULT_RATE_HZ,
         frame_id: str = DEFAULT_FRAME_ID,
+        max_frame_bytes: int | None = None,
     ) -> None:
         if not files:
             msg = "no images to replay"
@@ -286,11 +304,17 @@ class ImageSequenceSource:
         self.files = tuple(files)
         self.frame_id = frame_id
         self.rate_hz = rate_hz
+        self.max_frame_bytes = max_frame_bytes
         self._period = _period_ns(rate_hz)
 
     @classmethod
     def from_folder(
-        cls, folder: Path, *, rate_hz: float = DEFAULT_RATE_HZ, frame_id: str = DEFAULT_FRAME_ID
+        cls,
+        folder: Path,
+        *,
+        rate_hz: float = DEFAULT_RATE_HZ,
+        frame_id: str = DEFAULT_FRAME_ID,
+        max_frame_bytes: int | None = None,
     ) -> ImageSequenceSource:
         files = list_images(folder)
         if not files:
@@ -299,7 +323,7 @@ class ImageSequenceSource:
                 f"({', '.join(sorted(IMAGE_SUFFIXES))})"
             )
             raise ReplayError(msg)
-        return cls(files, rate_hz=rate_hz, frame_id=frame_id)
+        return cls(files, rate_hz=rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes)
 
     @property
     def count(self) -> int | None:
@@ -307,7 +331,7 @@ class ImageSequenceSource:
 
     def frames(self, *, epoch_ns: int = 0, seq_start: int = 0) -> Frames:
         for index, path in enumerate(self.files):
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            image = self._read(path, index + 1)
             if image is None:
                 msg = f"OpenCV cannot read the image {str(path)!r}"
                 raise ReplayError(msg)
@@ -317,6 +341,41 @@ class ImageSequenceSource:
                 seq=seq_start + index,
                 frame_id=self.frame_id,
             )
+
+    def _read(self, path: Path, number: int) -> npt.NDArray[np.uint8] | None:
+        """The image at ``path`` (frame ``number``), decoded only after the size its header
+        declares is checked (a small file may declare a huge image).
+
+        Raises:
+            ReplayError: unreadable, or declaring a frame the service would refuse: larger
+                than MAX_DIMENSION a side or, as BGRA, than ``max_frame_bytes``.
+
+        """
+        try:
+            data = path.read_bytes()
+        except OSError as err:
+            msg = f"cannot read the image {str(path)!r}: {err.strerror or err}"
+            raise ReplayError(msg) from err
+        size = image_header_size(data)
+        if size is not None:
+            width, height = size
+            if width > MAX_DIMENSION or height > MAX_DIMENSION:
+                msg = (
+                    f"frame {number} of the images, {str(path)!r}, declares {width}x{height} "
+                    f"pixels, over {MAX_DIMENSION} a side: not decoded"
+                )
+                raise ReplayError(msg)
+            limit = self.max_frame_bytes
+            if limit is not None and width * height * 4 > limit:  # sent as BGRA
+                msg = (
+                    f"frame {number} of the images is {width * height * 4} bytes, over "
+                    f"max_frame_bytes = {limit}: the service would refuse it; "
+                    f"{FRAME_LIMITS_HINT} ({str(path)!r} declares {width}x{height} pixels: "
+                    "not decoded)"
+                )
+                raise ReplayError(msg)
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        return None if image is None else np.asarray(image, dtype=np.uint8)
 
 
 # -- choosing --------------------------------------------------------------------------------
@@ -328,6 +387,7 @@ def open_source(
     topic: str | None = None,
     image_rate_hz: float = DEFAULT_RATE_HZ,
     frame_id: str = DEFAULT_FRAME_ID,
+    max_frame_bytes: int | None = None,
 ) -> FrameSource:
     """The source for ``path``.
 
@@ -351,7 +411,11 @@ def open_source(
         msg = f"a topic applies to rosbag2 sources only, and {str(path)!r} is not a bag"
         raise ReplayError(msg)
     if path.is_dir():
-        return ImageSequenceSource.from_folder(path, rate_hz=image_rate_hz, frame_id=frame_id)
+        return ImageSequenceSource.from_folder(
+            path, rate_hz=image_rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes
+        )
     if suffix in IMAGE_SUFFIXES:
-        return ImageSequenceSource([path], rate_hz=image_rate_hz, frame_id=frame_id)
+        return ImageSequenceSource(
+            [path], rate_hz=image_rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes
+        )
     return VideoSource(path, frame_id=frame_id)

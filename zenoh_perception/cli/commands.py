@@ -7,7 +7,6 @@ the Docker healthcheck runs ``status`` every few seconds.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -17,6 +16,16 @@ from zenoh_perception.camera.defaults import (
     DEFAULT_FRAME_ID,
     DEFAULT_KEY,
     DEFAULT_RATE_HZ,
+)
+from zenoh_perception.cli.numbers import (
+    DEMO_MAX_FPS,
+    DEMO_MIN_FPS,
+    MAX_COUNT,
+    MAX_RATE_HZ,
+    MAX_WAIT_S,
+    MIN_RATE_HZ,
+    bounded_float,
+    bounded_int,
 )
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
@@ -30,6 +39,7 @@ from zenoh_perception.settings import (
     Settings,
     add_settings_arguments,
     check_bound,
+    check_key,
     load_settings,
     settings_from_args,
 )
@@ -53,8 +63,8 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 
     return echo.main(
         zenoh_config_from_args(args, _session_defaults(args.ros_transport)),
-        tag_key=args.tag_key,
-        record_key=args.record_key,
+        tag_key=check_key("--tag-key", args.tag_key, concrete=False),
+        record_key=check_key("--record-key", args.record_key, concrete=False),
         ros_package=args.ros_package,
         ros=echo.RosGraph(args.ros_transport, args.ros_domain_id, args.ros_namespace),
         records=not args.tags_only,
@@ -68,13 +78,11 @@ def _cmd_echo(args: argparse.Namespace) -> int:
 def _cmd_status(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import status  # noqa: PLC0415
 
-    return status.main(zenoh_config_from_args(args), key=args.status_key, timeout=args.timeout)
+    key = check_key("--status-key", args.status_key, concrete=False)
+    return status.main(zenoh_config_from_args(args), key=key, timeout=args.timeout)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.fps <= 0:
-        msg = "--fps must be positive"
-        raise SettingsError(msg)
     from zenoh_perception.camera import demo  # noqa: PLC0415
 
     return demo.main(
@@ -135,8 +143,18 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     parser.add_argument("--tags-only", action="store_true", help="do not print records")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
-    parser.add_argument("--count", type=int, default=0, help="exit after N lines (0: never)")
-    parser.add_argument("--timeout", type=float, default=None, help="exit after S seconds")
+    parser.add_argument(
+        "--count",
+        type=bounded_int(0, MAX_COUNT),
+        default=0,
+        help="exit after N lines (0: never)",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=bounded_float(0.001, MAX_WAIT_S),
+        default=None,
+        help="exit after S seconds",
+    )
     parser.set_defaults(handler=_cmd_echo)
 
 
@@ -144,7 +162,12 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
     add_zenoh_arguments(parser)
     parser.add_argument("--status-key", default="perception/status", help="status key")
-    parser.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    parser.add_argument(
+        "--timeout",
+        type=bounded_float(0.001, MAX_WAIT_S),
+        default=2.0,
+        help="seconds to wait (default 2)",
+    )
     parser.set_defaults(handler=_cmd_status)
 
 
@@ -180,16 +203,20 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     parser.add_argument(
         "--every",
-        type=_positive_float,
+        type=bounded_float(0.001, MAX_WAIT_S),
         default=1.0,
         metavar="S",
         help="with --save: at most one write every S seconds (default 1)",
     )
     parser.add_argument(
-        "--count", type=_non_negative_int, default=0, help="exit after N saves (0: never)"
+        "--count", type=bounded_int(0, MAX_COUNT), default=0, help="exit after N saves (0: never)"
     )
     parser.add_argument(
-        "--timeout", type=_positive_float, default=None, metavar="S", help="exit after S seconds"
+        "--timeout",
+        type=bounded_float(0.001, MAX_WAIT_S),
+        default=None,
+        metavar="S",
+        help="exit after S seconds",
     )
     parser.set_defaults(handler=_cmd_view)
 
@@ -199,32 +226,30 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--resolution", choices=tuple(RESOLUTIONS), default="VGA", help="camera resolution"
     )
-    group.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
+    group.add_argument(
+        "--fps",
+        type=bounded_float(DEMO_MIN_FPS, DEMO_MAX_FPS),
+        default=15.0,
+        help=f"frames per second, [{DEMO_MIN_FPS:g}, {DEMO_MAX_FPS:g}] (default 15)",
+    )
     group.add_argument(
         "--format", choices=("raw", "cdr"), default="raw", help="raw+attachment or Image CDR"
     )
     group.add_argument(
         "--camera-only", action="store_true", help="only publish frames (feed a separate run)"
     )
-    group.add_argument("--limit", type=int, default=0, help="stop after N frames (0: never)")
+    group.add_argument(
+        "--limit",
+        type=bounded_int(0, MAX_COUNT),
+        default=0,
+        help="stop after N frames (0: never)",
+    )
     group.add_argument(
         "--shm",
         action="store_true",
         help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
         "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
     )
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError as err:
-        msg = f"{text!r} is not a number"
-        raise argparse.ArgumentTypeError(msg) from err
-    if not math.isfinite(value) or value <= 0:
-        msg = f"{text!r} is not a positive number"
-        raise argparse.ArgumentTypeError(msg)
-    return value
 
 
 def _max_frame_bytes(text: str) -> int:
@@ -239,37 +264,21 @@ def _max_frame_bytes(text: str) -> int:
     return value
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError as err:
-        msg = f"{text!r} is not an integer"
-        raise argparse.ArgumentTypeError(msg) from err
-    if value < 0:
-        msg = f"{text!r} is negative"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
-def _frame_count(text: str) -> int:
-    """A frame count from 1 to 100,000."""
-    value = _non_negative_int(text)
-    if not 1 <= value <= 100_000:
-        msg = f"{text!r} is not from 1 to 100000"
-        raise argparse.ArgumentTypeError(msg)
-    return value
-
-
 def _cmd_replay(args: argparse.Namespace) -> int:
     from zenoh_perception.camera import replay  # noqa: PLC0415
     from zenoh_perception.camera.sources import open_source  # noqa: PLC0415
 
     conf = zenoh_config_from_args(args)  # a flag mistake is reported before any file is read
+    # what the service would refuse, or a wildcard to publish on, is refused before anything
+    if args.key is not None:  # None: the camera's default key for what it sends
+        check_key("--key", args.key, concrete=True)
+    replay.check_frame_id("--frame-id", args.frame_id)
     source = open_source(
         args.path,
         topic=args.topic,
         image_rate_hz=args.rate if args.rate is not None else DEFAULT_RATE_HZ,
         frame_id=args.frame_id,
+        max_frame_bytes=args.max_frame_bytes,
     )
     options = replay.options_from_args(args, stderr_is_tty=sys.stderr.isatty())
     return replay.main(conf, source, options, stop_on_signals())
@@ -315,7 +324,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument(
         "--rate",
-        type=_positive_float,
+        type=bounded_float(MIN_RATE_HZ, MAX_RATE_HZ),
         default=None,
         metavar="HZ",
         help="send at HZ frames per second (default: the recorded rate: bag times, video FPS; "
@@ -325,7 +334,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.add_argument("--loop", action="store_true", help="start over at the end")
     parser.add_argument(
         "--limit",
-        type=_non_negative_int,
+        type=bounded_int(0, MAX_COUNT),
         default=0,
         metavar="N",
         help="stop after N frames in total (default 0: no limit)",
@@ -364,7 +373,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     )
     parser.add_argument(
         "--subscriber-timeout",
-        type=_positive_float,
+        type=bounded_float(0.001, MAX_WAIT_S),
         default=None,
         metavar="S",
         help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
@@ -406,7 +415,7 @@ def _add_probe(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     parser.add_argument(
         "--max-frames",
-        type=_frame_count,
+        type=bounded_int(1, 100_000),
         default=300,
         metavar="N",
         help="frames read per file at most, spread over a longer one (default 300)",
@@ -433,12 +442,16 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="write a PNG of latency vs resolution (--dataset: found and false ids per item "
         "and per marker size)",
     )
-    parser.add_argument("--frames", type=int, help="independent frames per resolution")
-    parser.add_argument("--video-frames", type=int, help="frames of the video drive")
-    parser.add_argument("--seed", type=int, help="scene seed")
+    parser.add_argument(
+        "--frames", type=bounded_int(1, 100_000), help="independent frames per resolution"
+    )
+    parser.add_argument(
+        "--video-frames", type=bounded_int(2, 100_000), help="frames of the video drive"
+    )
+    parser.add_argument("--seed", type=bounded_int(0, 2**32 - 1), help="scene seed")
     parser.add_argument(
         "--passes",
-        type=int,
+        type=bounded_int(1, 1000),
         help="end to end: lockstep passes over each frame set, pooled (full: 3)",
     )
     parser.add_argument(
@@ -479,7 +492,7 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     )
     group.add_argument(
         "--max-video-frames",
-        type=int,
+        type=bounded_int(1, 1_000_000),
         default=600,
         metavar="N",
         help="frames read from each video (default 600)",

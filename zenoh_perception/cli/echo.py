@@ -20,6 +20,7 @@ from typing import Any, NamedTuple, TextIO
 import zenoh
 
 from zenoh_perception.errors import MessageDecodeError, SettingsError
+from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import check_bound, check_ros_package
 from zenoh_perception.wire.records import TagCodec, decode_record
@@ -139,7 +140,9 @@ def main(
     err: TextIO = sys.stderr,
 ) -> int:
     """Print decoded tags (and records, with gaps in their ``seq``) until ``count`` lines,
-    ``timeout`` or ``stop``; then the gap totals on ``err`` when records were followed.
+    ``timeout`` or ``stop``; then the gap totals on ``err`` when records were followed, and
+    how many samples were skipped as undecodable, by key and reason. A skipped sample is a
+    line too (one per key and reason every :data:`SKIP_LINE_INTERVAL_S`).
 
     Returns 0, or 1 when ``count`` lines did not arrive before ``timeout``.
 
@@ -156,6 +159,12 @@ def main(
     stop = stop or threading.Event()
     gaps = SeqGaps()
     gaps_lock = threading.Lock()
+    skipped = Skipped()
+
+    def skip(key: str, error: MessageDecodeError) -> None:
+        line = skipped.skip(key, error, as_json=as_json)
+        if line is not None:
+            lines.put(_Line(line, True))
 
     def on_tag(sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -164,14 +173,14 @@ def main(
                 _Line(format_tag(key, sample.payload.to_bytes(), codec, as_json=as_json), True)
             )
         except MessageDecodeError as error:
-            lines.put(_Line(f"[{key}] undecodable: {error}", True))
+            skip(key, error)
 
     def on_record(sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         try:
             record = decode_record(sample.payload.to_bytes())
         except MessageDecodeError as error:
-            lines.put(_Line(f"[{key}] undecodable: {error}", True))
+            skip(key, error)
             return
         with gaps_lock:
             gap = gaps.observe(record["seq"])
@@ -187,6 +196,7 @@ def main(
         listening = " and ".join(repr(k) for k in keys)
         print(f"echo: listening on {listening} (Ctrl-C to stop)", file=err, flush=True)
         code = _print_lines(lines, stop, out, count=count, timeout=timeout)
+    print(f"echo: {skipped.summary()}", file=err, flush=True)
     if records:
         with gaps_lock:
             print(f"echo: {gaps.summary()}", file=err, flush=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections import Counter
 from typing import TextIO
 
 import zenoh
@@ -19,17 +20,22 @@ def main(
     timeout: float = 2.0,
     out: TextIO = sys.stdout,
 ) -> int:
-    """Print the status JSON; 0 when at least one service answered, 1 otherwise.
+    """Print the status JSON; 0 when at least one service answered, 1 otherwise. Replies
+    that are no status are skipped, and counted by reason on stderr.
 
     Raises:
         SessionError: the Zenoh session cannot be opened.
 
     """
+    skipped: Counter[str] = Counter()
     with open_zenoh(conf) as session:
-        replies = query_status(session, key, timeout)
+        replies = query_status(session, key, timeout, skipped=skipped)
+    for reason, count in sorted(skipped.items()):
+        print(f"status: skipped {count} reply(ies) on {key!r}: {reason}", file=sys.stderr)
     if not replies:
         print(f"no perception service answered on {key!r} within {timeout} s", file=sys.stderr)
         return 1
     for reply in replies:
-        print(json.dumps(reply, indent=2), file=out)
+        # the replies were parsed without NaN or Infinity: what is printed is JSON
+        print(json.dumps(reply, indent=2, allow_nan=False), file=out)
     return 0

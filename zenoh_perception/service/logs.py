@@ -1,9 +1,10 @@
 """Log lines in ``key=value`` form, safe against whatever text a payload carries.
 
 Every line is ``ts=<ISO 8601 UTC> level=<LEVEL> logger=<name>`` followed by the message's own
-``key=value`` pairs. Values that are not plain tokens are JSON-quoted (quotes, backslashes and
-newlines escaped), so a hostile string from the network can neither break a line in two nor
-forge a key.
+``key=value`` pairs. Values that are not plain tokens are JSON-quoted (quotes, backslashes,
+newlines and every other control character escaped), so a hostile string from the network can
+neither break a line in two, nor forge a key, nor reach a terminal as an escape sequence. The
+formatter escapes whatever control character is left in a line (a library's own message).
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ import threading
 import time
 from typing import Final
 
-_PLAIN: Final = re.compile(r"[^\s\"=\\]*")
+_PLAIN: Final = re.compile(r"[^\s\"=\\\x00-\x1f\x7f-\x9f]*")
+#: C0 controls, DEL and C1 controls: what a terminal may act on.
+_CONTROL: Final = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 log = logging.getLogger("zenoh_perception.service.logs")
 
 
@@ -25,7 +28,18 @@ def kv_value(value: object) -> str:
     text = value if isinstance(value, str) else str(value)
     if text and _PLAIN.fullmatch(text):
         return text
-    return json.dumps(text)
+    # json escapes C0 controls and, ASCII-only, everything past DEL; DEL itself stays raw
+    return json.dumps(text).replace("\x7f", "\\u007f")
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with each control character written as an escape (``\\n``, ``\\x1b``)."""
+    return _CONTROL.sub(_escape_one, text)
+
+
+def _escape_one(match: re.Match[str]) -> str:
+    char = match.group()
+    return "\\n" if char == "\n" else f"\\x{ord(char):02x}"
 
 
 def kv(**fields: object) -> str:
@@ -45,7 +59,7 @@ class KeyValueFormatter(logging.Formatter):
         )
         if record.exc_info:
             line += f" exc={kv_value(self.formatException(record.exc_info))}"
-        return line.replace("\n", "\\n")
+        return escape_controls(line)
 
 
 def _log_thread_crash(args: threading.ExceptHookArgs) -> None:

@@ -50,7 +50,8 @@ from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import Settings
-from zenoh_perception.wire.camera_info import decode_camera_info
+from zenoh_perception.tags.pose import Intrinsics
+from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
 from zenoh_perception.wire.compressed import decode_compressed_cdr
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.frames import (
@@ -101,7 +102,12 @@ class PerceptionService:
         self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
         self._session = session
         self._ros = RosTransport(session, settings)
+        # Callbacks read the zid from here: asking the session while it closes raises.
+        self._zid = str(session.zid())
+        self._other_tokens = 0
+        self._other_lock = threading.Lock()
         self._pipeline = Pipeline(settings, detector)
+        self._camera_info: tuple[Intrinsics, tuple[int, int]] | None = None
         self._codec = TagCodec(settings.ros_package)
         self._ros_outputs = RosOutputs(settings)
         self._gate = LogGate(settings.log_interval_s)
@@ -244,13 +250,19 @@ class PerceptionService:
         self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
 
     def _on_service_token(self, sample: zenoh.Sample) -> None:
-        """Another perception service's liveliness token appeared (ours is left out)."""
+        """Another perception service's liveliness token appeared (ours is left out).
+
+        Anyone may declare tokens under the key: one rate limit for the event, whatever the
+        name, and only a count kept.
+        """
         other = str(sample.key_expr).rsplit("/", 1)[-1]
-        if sample.kind != zenoh.SampleKind.PUT or other == str(self._session.zid()):
+        if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
             return
+        with self._other_lock:
+            self._other_tokens += 1
         self._log_limited(
             logging.WARNING,
-            f"another_service:{other}",
+            "another_service",
             "another_service",
             zid=other,
             liveliness=str(sample.key_expr),
@@ -261,7 +273,8 @@ class PerceptionService:
 
     def _on_camera_info(self, sample: zenoh.Sample) -> None:
         try:
-            intrinsics = decode_camera_info(sample.payload.to_bytes())
+            check_camera_info_size(len(sample.payload))  # before the copy out of Zenoh
+            info = decode_camera_info(sample.payload.to_bytes())
         except (CameraInfoError, IntrinsicsError) as err:
             # Counted apart from frames: a bad CameraInfo is no frame, and the intrinsics in
             # use stay as they were.
@@ -275,8 +288,10 @@ class PerceptionService:
             )
             return
         self.stats.on_camera_info(None)
-        if intrinsics != self._pipeline.intrinsics:
-            self._pipeline.intrinsics = intrinsics
+        intrinsics = info.intrinsics
+        if (intrinsics, (info.width, info.height)) != self._camera_info:
+            self._camera_info = (intrinsics, (info.width, info.height))
+            self._pipeline.use_camera_info(intrinsics, info.width, info.height)
             # A camera whose intrinsics change on every message would flood the log: the
             # line is rate-limited and the status always shows the intrinsics in use.
             self._log_limited(
@@ -287,6 +302,8 @@ class PerceptionService:
                 fy=f"{intrinsics.fy:.2f}",
                 cx=f"{intrinsics.cx:.2f}",
                 cy=f"{intrinsics.cy:.2f}",
+                width=info.width,
+                height=info.height,
             )
 
     def _on_status_query(self, query: zenoh.Query) -> None:
@@ -360,6 +377,17 @@ class PerceptionService:
             # A detector failing on one (valid) frame must not kill the worker: status and
             # liveliness would still say "alive" while no frame is ever answered again.
             raise ProcessingError("detect", err) from err
+        # counted before any output is out: whoever reads one may ask the status next
+        if analysis.intrinsics_mismatch:
+            self.stats.on_intrinsics_mismatch()
+            self._log_limited(
+                logging.WARNING,
+                "intrinsics_mismatch",
+                "intrinsics_mismatch",
+                frame=f"{frame.width}x{frame.height}",
+                detail="the CameraInfo in use is for another image size: its intrinsics are "
+                "left out for this frame",
+            )
         try:
             tag = bytes(self._codec.encode(analysis.selected))
         except _ENCODE_ERRORS as err:
@@ -519,9 +547,10 @@ class PerceptionService:
         return {
             "service": "zenoh-perception",
             "version": __version__,
-            "zid": str(self._session.zid()),
+            "zid": self._zid,
             "worker_alive": not self.failed.is_set(),
             **snapshot,
+            "liveliness": {"other_services": self._other_tokens},
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
                 "published": self._debug_images,

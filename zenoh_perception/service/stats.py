@@ -36,6 +36,7 @@ class StatsSnapshot:
     processing_errors: dict[str, int] = field(default_factory=dict)
     camera_info_received: int = 0
     camera_info_rejected: dict[str, int] = field(default_factory=dict)
+    intrinsics_mismatch: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -64,6 +65,7 @@ class StatsSnapshot:
             "camera_info": {
                 "received": self.camera_info_received,
                 "rejected_by_reason": dict(self.camera_info_rejected),
+                "size_mismatch_frames": self.intrinsics_mismatch,
             },
         }
 
@@ -104,6 +106,7 @@ class ServiceStats:
         self._processing_errors: Counter[str] = Counter()
         self._camera_info_received = 0
         self._camera_info_rejected: Counter[str] = Counter()
+        self._intrinsics_mismatch = 0
 
     def on_received(self, dropped_one: bool) -> None:
         with self._lock:
@@ -146,6 +149,11 @@ class ServiceStats:
             if rejected_reason is not None:
                 self._camera_info_rejected[rejected_reason] += 1
 
+    def on_intrinsics_mismatch(self) -> None:
+        """One frame not of the size of the CameraInfo in use (its intrinsics left out)."""
+        with self._lock:
+            self._intrinsics_mismatch += 1
+
     def _forget_before(self, now: float) -> None:
         horizon = now - self._fps_window_s
         while self._done_at and self._done_at[0] <= horizon:
@@ -181,14 +189,30 @@ class ServiceStats:
                 processing_errors=dict(self._processing_errors),
                 camera_info_received=self._camera_info_received,
                 camera_info_rejected=dict(self._camera_info_rejected),
+                intrinsics_mismatch=self._intrinsics_mismatch,
             )
 
 
-class LogGate:
-    """At most one log line per key per ``interval`` s; reports how many were suppressed."""
+#: Keys a :class:`LogGate` remembers at most (keys are events and reasons, a fixed set).
+LOG_GATE_KEYS: Final = 256
 
-    def __init__(self, interval: float, clock: Callable[[], float] = time.monotonic) -> None:
+
+class LogGate:
+    """At most one log line per key per ``interval`` s; reports how many were suppressed.
+
+    It remembers at most ``max_keys`` keys: past that, the oldest is forgotten (its next line
+    is let through), so no stream of new keys grows it for good.
+    """
+
+    def __init__(
+        self,
+        interval: float,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        max_keys: int = LOG_GATE_KEYS,
+    ) -> None:
         self._interval = interval
+        self._max_keys = max_keys
         self._clock = clock
         self._last: dict[str, float] = {}
         self._suppressed: Counter[str] = Counter()
@@ -202,5 +226,10 @@ class LogGate:
             if last is not None and now - last < self._interval:
                 self._suppressed[key] += 1
                 return None
+            self._last.pop(key, None)  # re-inserted last: the dict is oldest first
             self._last[key] = now
+            while len(self._last) > self._max_keys:
+                oldest = next(iter(self._last))
+                del self._last[oldest]
+                self._suppressed.pop(oldest, None)
             return self._suppressed.pop(key, 0)

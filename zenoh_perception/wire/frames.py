@@ -53,8 +53,13 @@ MAX_PIXELS: Final = MAX_DIMENSION * MAX_DIMENSION
 MAX_STAMP_NS: Final = 2**63 - 1
 #: Largest accepted attachment; real ones are well under 200 bytes.
 MAX_ATTACHMENT_BYTES: Final = 4096
-#: Largest accepted frame_id length, in characters.
+#: Largest accepted frame_id length, in characters (raw and CDR alike).
 MAX_FRAME_ID_CHARS: Final = 256
+#: Largest accepted ``seq`` of a raw frame's attachment: a 32-bit frame counter (ROS 1's
+#: Header.seq), so no hostile counter makes a consumer count 2**64 records missing.
+MAX_SEQ: Final = 2**32 - 1
+#: A CDR stamp's nanoseconds are below one second (builtin_interfaces/Time).
+NANOSEC_PER_SEC: Final = 1_000_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -173,6 +178,10 @@ def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
     if width is None or height is None:  # pragma: no cover - required=True guarantees ints
         msg = "attachment lacks width or height"
         raise AttachmentError(msg)
+    seq = _int_field(fields, "seq", required=False)
+    if seq is not None and not 0 <= seq <= MAX_SEQ:
+        msg = f"attachment 'seq' {seq} is outside [0, {MAX_SEQ}]"
+        raise AttachmentError(msg)
     return RawFrameMeta(
         width=width,
         height=height,
@@ -180,7 +189,7 @@ def decode_attachment(data: bytes | memoryview | None) -> RawFrameMeta:
         step=_int_field(fields, "step", required=False),
         stamp_ns=stamp_ns,
         frame_id=frame_id,
-        seq=_int_field(fields, "seq", required=False),
+        seq=seq,
     )
 
 
@@ -297,11 +306,18 @@ def decode_image_cdr(payload: bytes | memoryview, *, max_pixels: int = MAX_PIXEL
     if data.ndim != 1 or data.dtype != np.uint8:  # pragma: no cover - rosbags always gives uint8[]
         text = "Image.data is not a uint8 sequence"
         raise ImageCdrError(text)
+    nanosec = int(msg.header.stamp.nanosec)
+    if nanosec >= NANOSEC_PER_SEC:
+        text = f"stamp nanosec {nanosec} is not below {NANOSEC_PER_SEC}"
+        raise StampError(text)
     stamp_ns = check_stamp(stamp_ns_of(msg.header))
+    frame_id = str(msg.header.frame_id)
+    if len(frame_id) > MAX_FRAME_ID_CHARS:
+        text = f"header frame_id of {len(frame_id)} characters, over {MAX_FRAME_ID_CHARS}"
+        raise ImageCdrError(text)
     pixels = pixel_view(
         data, int(msg.width), int(msg.height), int(msg.step), encoding, max_pixels=max_pixels
     )
-    frame_id = str(msg.header.frame_id)[:MAX_FRAME_ID_CHARS]
     return Frame(pixels, encoding, stamp_ns, frame_id, None)
 
 

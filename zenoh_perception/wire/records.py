@@ -10,6 +10,7 @@ rounded to float32 so that they equal the ``tag`` message of the same frame exac
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
@@ -139,19 +140,94 @@ _RECORD_KEYS: Final = (
 )
 
 
+_INT_KEYS: Final = ("stamp_ns", "seq", "width", "height")
+#: Deepest nesting a record holds (``tags`` > tag > ``pose`` > ``rvec``), with room to spare.
+_MAX_RECORD_DEPTH: Final = 8
+
+
 def decode_record(payload: bytes | memoryview) -> dict[str, Any]:
-    """Parse a ``perception/tags`` record and check its required keys.
+    """Parse a ``perception/tags`` record and check what a consumer reads of it: the required
+    keys, their types (``schemas/perception-tags.schema.json``) and that every number in it
+    is finite, so that it prints as JSON.
 
     Raises:
-        MessageDecodeError: not msgpack, not a map, or required keys missing.
+        MessageDecodeError: with ``reason`` ``not_a_record`` (not msgpack, not a map),
+            ``missing_field``, ``bad_field`` (a wrong type, or nested too deep) or
+            ``non_finite`` (NaN or an infinity).
 
     """
-    record = unpack_msgpack_map(payload, MessageDecodeError, "record")
+    try:
+        record = unpack_msgpack_map(payload, MessageDecodeError, "record")
+    except MessageDecodeError as err:
+        raise MessageDecodeError(str(err), reason="not_a_record") from err
     missing = [key for key in _RECORD_KEYS if key not in record]
     selected = record.get("selected")
     if not missing and isinstance(selected, dict):
         missing = [f"selected.{key}" for key in MESSAGE_FIELDS if key not in selected]
     if missing:
         text = f"record lacks {', '.join(missing)}"
-        raise MessageDecodeError(text)
+        raise MessageDecodeError(text, reason="missing_field")
+    _check_record(record)
     return record
+
+
+def _bad(text: str) -> MessageDecodeError:
+    return MessageDecodeError(text, reason="bad_field")
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _check_message(where: str, message: object) -> None:
+    if not isinstance(message, dict):
+        raise _bad(f"{where} is a {type(message).__name__}, not a map")
+    for key in MESSAGE_FIELDS:
+        value = message.get(key)
+        if key == "tag_id" and not _is_int(value):
+            raise _bad(f"{where}.tag_id is {value!r}, not an integer")
+        if not _is_int(value) and not isinstance(value, float):
+            raise _bad(f"{where}.{key} is {value!r}, not a number")
+
+
+def _check_record(record: dict[Any, Any]) -> None:
+    for key in _INT_KEYS:
+        if not _is_int(record[key]):
+            raise _bad(f"{key} is {record[key]!r}, not an integer")
+    if not isinstance(record["frame_id"], str):
+        raise _bad(f"frame_id is {record['frame_id']!r}, not a string")
+    _check_message("selected", record["selected"])
+    tags, timing = record["tags"], record["timing"]
+    if not isinstance(tags, list):
+        raise _bad(f"tags is {tags!r}, not an array")
+    for index, tag in enumerate(tags):
+        _check_message(f"tags[{index}]", tag)
+    if not isinstance(timing, dict):
+        raise _bad(f"timing is {timing!r}, not a map")
+    for key, value in timing.items():
+        if not isinstance(key, str) or not (_is_int(value) or isinstance(value, float)):
+            raise _bad(f"timing.{key} is {value!r}, not a number")
+    _check_json_ready("record", record, 0)
+
+
+def _check_json_ready(where: str, value: object, depth: int) -> None:
+    """``value`` is what JSON holds: maps with string keys, arrays, strings, integers,
+    finite floats, booleans and nulls, at most :data:`_MAX_RECORD_DEPTH` deep."""
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise MessageDecodeError(f"{where} is {value}", reason="non_finite")
+        return
+    if value is None or isinstance(value, str | int):
+        return
+    if not isinstance(value, dict | list):
+        raise _bad(f"{where} is a {type(value).__name__}, which JSON does not hold")
+    if depth >= _MAX_RECORD_DEPTH:
+        raise _bad(f"{where} nests deeper than {_MAX_RECORD_DEPTH} levels")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise _bad(f"{where} has the key {key!r}, not a string")
+            _check_json_ready(f"{where}.{key}", item, depth + 1)
+    else:
+        for index, item in enumerate(value):
+            _check_json_ready(f"{where}[{index}]", item, depth + 1)
