@@ -450,6 +450,7 @@ class PerceptionService:
             "zid": str(self._session.zid()),
             "worker_alive": not self.failed.is_set(),
             **snapshot,
+            "vetoed_by_reason": dict(self._pipeline.vetoed),
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
                 "published": self._debug_images,
