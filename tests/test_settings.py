@@ -274,3 +274,15 @@ def test_bad_values_in_the_file_name_the_file_and_the_setting(tmp_path: Path) ->
     path.write_text("stats_interval_s = 0.01\n")
     with pytest.raises(SettingsError, match=r"bad_value\.toml: stats_interval_s must be in"):
         load_settings(path)
+
+
+def test_verify_is_on_by_default_and_off_by_flag_or_file(tmp_path: Path) -> None:
+    assert Settings().verify is True
+    assert settings_from_args(_parse("--no-verify")).verify is False
+    assert settings_from_args(_parse("--verify")).verify is True
+    path = tmp_path / "s.toml"
+    path.write_text("verify = false\n")
+    assert load_settings(path).verify is False
+    path.write_text('verify = "no"\n')
+    with pytest.raises(SettingsError, match="verify"):
+        load_settings(path)

@@ -3,26 +3,32 @@ logging.
 
 OpenCV's ``ArucoDetector`` proposes every marker and its id; :class:`Verifier` re-reads each
 one from the grey image and may reject it, never add one nor change its id or corners. The
-marker is warped onto a grid of its own cells plus one ring of cells outside it (the quiet
-zone), each cell read as the mean of its central part. From those cell values:
+marker's quad is warped onto a grid of its own cells (border included) plus one ring of cells
+outside it (the quiet zone), each cell read on its central part. On the scale from the
+border's median level (0) to the white cells' (1):
 
-- ``quiet_zone``: a printed marker sits on a light margin, as light as its white cells; a dark
-  key-cap with a light glyph, a book spine or a pictogram on a sign sits on something dark.
-  The ring's median level, on the scale from the border's level (0) to the white cells' (1),
-  must reach :data:`QUIET_MIN`;
-- ``cells``: a marker's cells are either as dark as its border or as light as its white
-  cells; a glyph's strokes leave cells half covered. The share of cells midway between the two
-  levels must stay under :data:`MIDWAY_MAX`.
+- ``quiet_zone``: a printed marker sits on a light margin as light as its white cells (the
+  same paper). The ring's median must lie in [:data:`QUIET_MIN`, :data:`QUIET_MAX`]: below,
+  the "marker" is a dark patch on something dark (a key-cap with a light glyph on a dark
+  keyboard, a letter on a book spine); above, its "white" cells are far darker than what
+  surrounds it (a dark window or a faint glyph in a light scene). Ring cells outside the image
+  are left out: a marker at the image border keeps its chance;
+- ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
+  border cells may be nearer the white level than the border's;
+- ``grid``: the quad read on another family's grid size (4 to 7 inner cells a side): a
+  marker's cells are more uniform on its own grid than on any other, so when the cells'
+  spread (mean standard deviation inside each cell) on its own grid is more than
+  :data:`GRID_RATIO_MAX` times the least on another grid, the quad is another family's
+  marker (tag36h11 read as DICT_4X4, for instance).
 
-Both only look at markers whose mean side is under :data:`SMALL_SIDE_PX`: larger ones are
-read by OpenCV from enough pixels that no look-alike on the project's real corpus reached
-that size, and a large marker is the one least worth losing. docs/benchmarks.md has the
-measured distributions on true and false detections that set the thresholds.
+docs/benchmarks.md gives the distributions of these features on the true and false
+detections of the project's real corpus that set the thresholds, and what each rule removes.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 from typing import Final
 
 import cv2
@@ -33,138 +39,143 @@ from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import Detection
 
 Gray = npt.NDArray[np.uint8]
+Mask = npt.NDArray[np.bool_]
 
 #: The veto reasons, in the order they are checked.
-REASONS: Final = ("quiet_zone", "border", "grid", "cells")
-#: Pixels per cell of the warped grid; each cell is read on its central CELL_CORE share.
+REASONS: Final = ("quiet_zone", "border", "grid")
+#: Pixels per cell of the warped grid; each cell is read on its central half (4 x 4 pixels).
 CELL_PX: Final = 8
-CELL_CORE: Final = 0.5
-#: Least median level of the quiet zone, from the border's level (0) to the white cells' (1).
+_CORE: Final = slice(2, 6)
+#: The quiet zone's median level must lie in [QUIET_MIN, QUIET_MAX] (border 0, white cells 1).
 QUIET_MIN: Final = 0.35
-#: Most border cells nearer the white level than the border's own, as a share.
+QUIET_MAX: Final = 1.8
+#: Most share of border cells nearer the white level than the border's.
 BORDER_LIGHT_MAX: Final = 0.35
 #: Most ratio of the cells' spread on the marker's own grid to the least on another grid size.
 GRID_RATIO_MAX: Final = 3.0
-#: Most cells (border and inner) midway between the dark and light levels, as a share.
-MIDWAY_MAX: Final = 0.5
-#: What counts as midway: a level this far from both 0 and 1 on the same scale.
-MIDWAY_BAND: Final = 0.25
+#: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
+GRID_SIZES: Final = (4, 5, 6, 7)
 
 
 @dataclass(frozen=True, slots=True)
 class Reading:
-    """A marker's cells as re-read from the image: levels on the border-to-white scale."""
+    """A marker's cells as re-read from the image (levels: border 0, white cells 1)."""
 
-    side_px: float
-    quiet: float  # median level of the quiet zone's cells (those inside the image)
-    midway: float  # share of the marker's cells midway between dark and light
+    side_px: float  # mean side of the quad, pixels
+    quiet: float  # median level of the quiet zone's cells inside the image
     contrast: float  # white cells' level minus the border's, grey levels
-    light: float  # white cells' level, grey levels
-    spread: float  # mean standard deviation inside the marker's cells, on the same scale
     border_light: float  # share of border cells nearer the white level than the border's
-    side_ratio: float  # shortest side over longest
-    grid_ratio: float  # spread on its own grid over the least spread on another grid size
+    grid_ratio: float  # cells' spread on its own grid over the least on another grid size
 
 
 def mean_side(corners: npt.NDArray[np.float32]) -> float:
+    """Mean side of a quad, pixels."""
     return float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).mean())
 
 
-def _cells(
-    gray: Gray, corners: npt.NDArray[np.float32], marker_cells: int
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
-    """The marker warped onto ``marker_cells`` (border included) cells a side plus one ring of
-    cells outside it: each cell's mean and standard deviation over its central part, and
-    whether that part lies inside the image."""
-    cells = marker_cells + 2
-    side = cells * CELL_PX
-    lo, hi = CELL_PX, (cells - 1) * CELL_PX
-    target = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], np.float32)
-    warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), target)
-    patch = cv2.warpPerspective(gray, warp, (side, side), flags=cv2.INTER_LINEAR)
-    margin = round(CELL_PX * (1.0 - CELL_CORE) / 2.0)
-    core = slice(margin, CELL_PX - margin)
-    blocks = patch.reshape(cells, CELL_PX, cells, CELL_PX)[:, core, :, core].astype(np.float32)
-    # each cell's central part, corner to corner, back in the image
-    edges = np.arange(cells, dtype=np.float32) * CELL_PX
-    ends = np.stack([edges + margin, edges + CELL_PX - margin - 1], axis=1)  # (cells, 2)
-    xs, ys = ends[None, :, None, :], ends[:, None, :, None]
-    points = np.stack(np.broadcast_arrays(xs, ys), axis=-1).reshape(-1, 1, 2)
-    back = cv2.perspectiveTransform(points, np.linalg.inv(warp)).reshape(cells, cells, 4, 2)
-    height, width = gray.shape[:2]
-    valid = (
-        (back[..., 0] >= 0)
-        & (back[..., 0] <= width - 1)
-        & (back[..., 1] >= 0)
-        & (back[..., 1] <= height - 1)
-    ).all(axis=2)
-    return blocks.mean(axis=(1, 3)), blocks.std(axis=(1, 3)), valid
-
-
-def _rings(cells: int) -> tuple[npt.NDArray[np.bool_], ...]:
-    """Masks of the quiet ring, the border ring and the inner cells of a grid of ``cells``."""
+@cache
+def _layout(marker_size: int) -> tuple[Mask, Mask, Mask, npt.NDArray[np.float32]]:
+    """For ``marker_size`` inner cells a side: the masks of the quiet ring, the border and the
+    inner cells of the warped grid, and the warped grid's quad corners."""
+    cells = marker_size + 4
     ring = np.zeros((cells, cells), bool)
     ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = True
-    border = np.zeros((cells, cells), bool)
-    border[1 : cells - 1, 1 : cells - 1] = True
-    border[2 : cells - 2, 2 : cells - 2] = False
     inner = np.zeros((cells, cells), bool)
-    inner[2 : cells - 2, 2 : cells - 2] = True
-    return ring, border, inner
+    inner[2:-2, 2:-2] = True
+    border = ~ring & ~inner
+    lo, hi = CELL_PX, (cells - 1) * CELL_PX
+    target = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], np.float32)
+    return ring, border, inner, target
+
+
+def _warp(
+    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float64]]:
+    """Each cell's mean and standard deviation over its central part (two (cells, cells)
+    arrays), and the homography used."""
+    cells = marker_size + 4
+    target = _layout(marker_size)[3]
+    warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), target)
+    patch = cv2.warpPerspective(gray, warp, (cells * CELL_PX, cells * CELL_PX))
+    blocks = patch.reshape(cells, CELL_PX, cells, CELL_PX)[:, _CORE, :, _CORE]
+    values = blocks.transpose(0, 2, 1, 3).reshape(cells, cells, -1).astype(np.float32)
+    mean = values.mean(axis=2)
+    var = np.maximum((values * values).mean(axis=2) - mean * mean, 0.0)
+    return mean, np.sqrt(var), np.asarray(warp, np.float64)
+
+
+def _median(values: npt.NDArray[np.float32]) -> float:
+    ordered = np.sort(values, axis=None)
+    middle = ordered.size // 2
+    return float(
+        ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+    )
+
+
+def _inside(gray: Gray, warp: npt.NDArray[np.float64], marker_size: int) -> Mask:
+    """Which cells of the warped grid have their central part inside the image."""
+    cells = marker_size + 4
+    height, width = gray.shape[:2]
+    outline = cv2.perspectiveTransform(
+        np.array(
+            [
+                [[0, 0]],
+                [[cells * CELL_PX - 1, 0]],
+                [[cells * CELL_PX - 1] * 2],
+                [[0, cells * CELL_PX - 1]],
+            ],
+            np.float32,
+        ),
+        np.linalg.inv(warp),
+    )
+    if (
+        (outline >= 0).all()
+        and (outline[..., 0] <= width - 1).all()
+        and (outline[..., 1] <= height - 1).all()
+    ):
+        return np.ones((cells, cells), bool)  # the whole grid is inside the image
+    ends = np.arange(cells, dtype=np.float32)[:, None] * CELL_PX + np.array([2, 5], np.float32)
+    xs, ys = np.meshgrid(ends.reshape(-1), ends.reshape(-1))
+    points = np.stack([xs, ys], axis=-1).reshape(-1, 1, 2)
+    back = cv2.perspectiveTransform(points, np.linalg.inv(warp)).reshape(cells, 2, cells, 2, 2)
+    ok = (back >= 0).all(axis=-1) & (back[..., 0] <= width - 1) & (back[..., 1] <= height - 1)
+    return np.asarray(ok.all(axis=(1, 3)), bool)
 
 
 def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
     side, as a :class:`Reading`."""
-    grid, stds, valid = _cells(gray, corners, marker_size + 2)
-    ring, border, inner = _rings(marker_size + 4)
-    dark = float(np.median(grid[border]))
+    ring, border, inner, _ = _layout(marker_size)
+    grid, spread, warp = _warp(gray, corners, marker_size)
+    dark = _median(grid[border])
     code = grid[inner]
     # white cells: the inner cells above the midpoint between the border and the lightest cell
     split = (dark + float(code.max())) / 2.0
-    light = float(np.median(code[code > split])) if (code > split).any() else dark
+    light = _median(code[code > split]) if (code > split).any() else dark
     contrast = light - dark
-    scale = contrast if contrast > 1.0 else 1.0
+    scale = max(contrast, 1.0)
     levels = (grid - dark) / scale
-    quiet_cells = levels[ring & valid]
-    quiet = float(np.median(quiet_cells)) if quiet_cells.size else 1.0
-    marker = levels[border | inner]
-    midway = float(np.mean((marker > MIDWAY_BAND) & (marker < 1.0 - MIDWAY_BAND)))
-    spread = float(stds[border | inner].mean()) / scale
+    quiet_cells = levels[ring & _inside(gray, warp, marker_size)]
+    quiet = _median(quiet_cells) if quiet_cells.size else 1.0
     border_light = float(np.mean(levels[border] > 0.5))
-    sides = np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1)
-    side_ratio = float(sides.min() / max(float(sides.max()), 1e-6))
-    # the same quad read as another grid size: a marker's cells are most uniform on its own
-    others = []
-    for size in (4, 5, 6, 7):
-        if size != marker_size:
-            _, other_stds, _ = _cells(gray, corners, size + 2)
-            _, other_border, other_inner = _rings(size + 4)
-            others.append(float(other_stds[other_border | other_inner].mean()) / scale)
-    grid_ratio = spread / max(min(others), 1e-6)
-    return Reading(
-        mean_side(corners),
-        quiet,
-        midway,
-        contrast,
-        light,
-        spread,
-        border_light,
-        side_ratio,
-        grid_ratio,
+    own = float(spread[~ring].mean())
+    least = min(
+        float(_warp(gray, corners, size)[1][~_layout(size)[0]].mean())
+        for size in GRID_SIZES
+        if size != marker_size
     )
+    grid_ratio = own / max(least, 1e-3)
+    return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio)
 
 
 def veto_reason(reading: Reading) -> str | None:
     """The first of :data:`REASONS` that rejects ``reading``, or None to keep it."""
-    if reading.quiet < QUIET_MIN:
+    if not QUIET_MIN <= reading.quiet <= QUIET_MAX:
         return "quiet_zone"
     if reading.border_light > BORDER_LIGHT_MAX:
         return "border"
     if reading.grid_ratio > GRID_RATIO_MAX:
         return "grid"
-    if reading.midway > MIDWAY_MAX:
-        return "cells"
     return None
 
 
@@ -179,7 +190,7 @@ class Verifier:
         return veto_reason(read_cells(gray, detection.corners, self._marker_size))
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
-        """The detections kept (same objects, same order) and the reason of each veto."""
+        """The detections kept (the same objects, in order) and the reason of each veto."""
         kept: list[Detection] = []
         reasons: list[str] = []
         for detection in detections:

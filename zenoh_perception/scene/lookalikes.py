@@ -9,7 +9,9 @@ hidden in it where a real look-alike happens to hold one (the detector decodes n
 - ``text``: book spines: dark bands with light lettering, one letter of a band a code;
 - ``tiles``: a tiled surface: dark glazed tiles with a light pattern (soft blobs or crisp
   strokes that join the white cells of a code), dark joints between them;
-- ``other_family``: markers of another dictionary family, printed with their quiet zone.
+- ``other_family``: markers of families whose grid has another number of cells, printed with
+  their quiet zone (a family of the same grid size reads the same cells as the dictionary:
+  only the codes tell them apart, and OpenCV has read those).
 
 :func:`lookalike_frame` draws one frame of a kind; :func:`true_tag_frame` draws true markers
 of the dictionary, small, blurred, oblique, in shadow and JPEG'd, on a light ground, the
@@ -166,7 +168,7 @@ def _text(dictionary: str, width: int, height: int, rng: np.random.Generator) ->
 
 
 def _tiles(dictionary: str, width: int, height: int, rng: np.random.Generator) -> Image:
-    grout = int(rng.integers(10, 60))
+    grout = int(rng.integers(0, 16))
     canvas = canvas_from(width, height, grout)
     tile = float(rng.uniform(12.0, 48.0))
     joint = max(1.0, tile * float(rng.uniform(0.05, 0.15)))
@@ -192,7 +194,8 @@ def _tiles(dictionary: str, width: int, height: int, rng: np.random.Generator) -
 
 def _other_family(dictionary: str, width: int, height: int, rng: np.random.Generator) -> Image:
     canvas = canvas_from(width, height, int(rng.integers(170, 240)))
-    others = [f for f in FAMILIES if family(f) != family(dictionary)]
+    size = aruco_dictionary(dictionary).markerSize
+    others = [f for f in FAMILIES if aruco_dictionary(f).markerSize != size]
     side = float(rng.uniform(14.0, 60.0))
     y = side * 0.3
     while y + side * 1.3 < height:
