@@ -52,7 +52,7 @@ QUIET_MAX: Final = 1.8
 #: Most share of border cells nearer the white level than the border's.
 BORDER_LIGHT_MAX: Final = 0.35
 #: Most ratio of the cells' spread on the marker's own grid to the least on another grid size.
-GRID_RATIO_MAX: Final = 3.0
+GRID_RATIO_MAX: Final = 2.5
 #: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
 GRID_SIZES: Final = (4, 5, 6, 7)
 
