@@ -10,8 +10,9 @@ hidden in it where a real look-alike happens to hold one (the detector decodes n
 - ``tiles``: a tiled surface: dark glazed tiles with a light pattern (soft blobs or crisp
   strokes that join the white cells of a code), dark joints between them;
 - ``other_family``: markers of families whose grid has another number of cells, printed with
-  their quiet zone (a family of the same grid size reads the same cells as the dictionary:
-  only the codes tell them apart, and OpenCV has read those).
+  their quiet zone, 24 px a side or more (a family of the same grid size reads the same cells
+  as the dictionary: only the codes tell them apart, and OpenCV has read those; and under
+  about 24 px a cell has too few pixels to tell one grid size from another).
 
 :func:`lookalike_frame` draws one frame of a kind; :func:`true_tag_frame` draws true markers
 of the dictionary, small, blurred, oblique, in shadow and JPEG'd, on a light ground, the
@@ -196,7 +197,8 @@ def _other_family(dictionary: str, width: int, height: int, rng: np.random.Gener
     canvas = canvas_from(width, height, int(rng.integers(170, 240)))
     size = aruco_dictionary(dictionary).markerSize
     others = [f for f in FAMILIES if aruco_dictionary(f).markerSize != size]
-    side = float(rng.uniform(14.0, 60.0))
+    # from 24 px: smaller, a cell has too few pixels to tell one grid size from another
+    side = float(rng.uniform(24.0, 60.0))
     y = side * 0.3
     while y + side * 1.3 < height:
         x = side * 0.3
