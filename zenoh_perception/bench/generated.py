@@ -43,7 +43,7 @@ from zenoh_perception.bench.framesets import (
     Plan,
     frame_sets,
 )
-from zenoh_perception.bench.goals import goals, lookalike_goals
+from zenoh_perception.bench.goals import goals
 from zenoh_perception.bench.lookalikes import lookalike_report
 from zenoh_perception.bench.plot import plot
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigterm_exits
@@ -116,7 +116,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         report["throughput"] = measure_throughput(plan, progress, shm=shm)
         report["e2e_setup"] = _e2e_setup(report, shm)
     report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
-    report["goals"] = goals(report) + lookalike_goals(report["lookalikes"])
+    report["goals"] = goals(report)
     return report
 
 

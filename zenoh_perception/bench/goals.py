@@ -105,6 +105,8 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             default["processed"] == default["published"] and default["dropped"] == 0,
             f"dropped {default['dropped']}, {default['processed_hz']:.1f} Hz",
         )
+    if "lookalikes" in report:
+        rows += lookalike_goals(report["lookalikes"])
     return rows
 
 

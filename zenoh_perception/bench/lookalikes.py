@@ -11,6 +11,7 @@ frame is one of the tags drawn there, or counted false). The goals are
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,12 +28,18 @@ from zenoh_perception.scene.lookalikes import (
 
 
 def lookalike_report(
-    frames: int, seed: int, *, verify: bool = True, progress: Progress | None = None
+    frames: int,
+    seed: int,
+    *,
+    verify: bool = True,
+    families: Sequence[str] = FAMILIES,
+    progress: Progress | None = None,
 ) -> dict[str, Any]:
-    """Per family of :data:`FAMILIES`: ``frames`` frames of each look-alike kind and of true
-    tags, OpenCV's default and the service's detector side by side."""
+    """Per family (one dictionary each, default :data:`FAMILIES`): ``frames`` frames of each
+    look-alike kind and of true tags, OpenCV's default and the service's detector side by
+    side."""
     out: dict[str, Any] = {}
-    for index, dictionary in enumerate(FAMILIES):
+    for index, dictionary in enumerate(families):
         rng = np.random.default_rng(seed + index)
         opencv = Baseline(dictionary)
         service = Project(dictionary, make_detector("opencv", dictionary), verify=verify)
