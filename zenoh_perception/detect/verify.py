@@ -46,6 +46,7 @@ REASONS: Final = ("quiet_zone", "border", "grid")
 #: Pixels per cell of the warped grid; each cell is read on its central half (4 x 4 pixels).
 CELL_PX: Final = 8
 _CORE: Final = slice(2, 6)
+_CORE_PX: Final = 4
 #: The quiet zone's median level must lie in [QUIET_MIN, QUIET_MAX] (border 0, white cells 1).
 QUIET_MIN: Final = 0.35
 QUIET_MAX: Final = 1.8
@@ -97,11 +98,13 @@ def _warp(
     target = _layout(marker_size)[3]
     warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), target)
     patch = cv2.warpPerspective(gray, warp, (cells * CELL_PX, cells * CELL_PX))
-    blocks = patch.reshape(cells, CELL_PX, cells, CELL_PX)[:, _CORE, :, _CORE]
-    values = blocks.transpose(0, 2, 1, 3).reshape(cells, cells, -1).astype(np.float32)
-    mean = values.mean(axis=2)
-    var = np.maximum((values * values).mean(axis=2) - mean * mean, 0.0)
-    return mean, np.sqrt(var), np.asarray(warp, np.float64)
+    core = patch.reshape(cells, CELL_PX, cells, CELL_PX)[:, _CORE, :, _CORE]
+    values = core.reshape(cells * _CORE_PX, cells * _CORE_PX).astype(np.float32)
+    # a 4 x 4 block's mean is one pixel of the area-resized image
+    mean = cv2.resize(values, (cells, cells), interpolation=cv2.INTER_AREA)
+    square = cv2.resize(values * values, (cells, cells), interpolation=cv2.INTER_AREA)
+    spread = np.sqrt(np.maximum(square - mean * mean, 0.0))
+    return np.asarray(mean, np.float32), np.asarray(spread, np.float32), np.asarray(warp)
 
 
 def _median(values: npt.NDArray[np.float32]) -> float:
