@@ -15,11 +15,12 @@ border's median level (0) to the white cells' (1):
   are left out: a marker at the image border keeps its chance;
 - ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
   border cells may be nearer the white level than the border's;
-- ``grid``: the quad read on another family's grid size (4 to 7 inner cells a side): a
-  marker's cells are more uniform on its own grid than on any other, so when the cells'
-  spread (mean standard deviation inside each cell) on its own grid is more than
-  :data:`GRID_RATIO_MAX` times the least on another grid, the quad is another family's
-  marker (tag36h11 read as DICT_4X4, for instance).
+- ``grid``: the quad read on the grids of the families with more cells (up to 7 inner cells
+  a side): a marker's cells are more uniform on its own grid than on a finer one, so when the
+  cells' spread (mean standard deviation inside each cell) on its own grid is more than
+  :data:`GRID_RATIO_MAX` times the least on a finer grid, the quad is a finer family's marker
+  whose cells happen to read as a code of the coarser one (tag36h11 read as DICT_4X4 or
+  tag16h5, 6X6 read as DICT_4X4 or 5X5: the confusions the real corpus shows).
 
 docs/benchmarks.md gives the distributions of these features on the true and false
 detections of the project's real corpus that set the thresholds, and what each rule removes.
@@ -52,7 +53,7 @@ QUIET_MIN: Final = 0.35
 QUIET_MAX: Final = 1.8
 #: Most share of border cells nearer the white level than the border's.
 BORDER_LIGHT_MAX: Final = 0.35
-#: Most ratio of the cells' spread on the marker's own grid to the least on another grid size.
+#: Most ratio of the cells' spread on the marker's own grid to the least on a finer grid.
 GRID_RATIO_MAX: Final = 2.5
 #: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
 GRID_SIZES: Final = (4, 5, 6, 7)
@@ -66,7 +67,7 @@ class Reading:
     quiet: float  # median level of the quiet zone's cells inside the image
     contrast: float  # white cells' level minus the border's, grey levels
     border_light: float  # share of border cells nearer the white level than the border's
-    grid_ratio: float  # cells' spread on its own grid over the least on another grid size
+    grid_ratio: float  # cells' spread on its own grid over the least on a finer grid
 
 
 def mean_side(corners: npt.NDArray[np.float32]) -> float:
@@ -162,10 +163,14 @@ def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -
     quiet = _median(quiet_cells) if quiet_cells.size else 1.0
     border_light = float(np.mean(levels[border] > 0.5))
     own = float(spread[~ring].mean())
-    least = min(
-        float(_warp(gray, corners, size)[1][~_layout(size)[0]].mean())
-        for size in GRID_SIZES
-        if size != marker_size
+    least = (
+        min(
+            float(_warp(gray, corners, size)[1][~_layout(size)[0]].mean())
+            for size in GRID_SIZES
+            if size > marker_size
+        )
+        if marker_size < GRID_SIZES[-1]
+        else own
     )
     grid_ratio = own / max(least, 1e-3)
     return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio)
