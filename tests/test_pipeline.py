@@ -148,7 +148,7 @@ class _Fixed:
 def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() -> None:
     quad = _square(10, 10, 20).astype(np.float32)
     detector = _Fixed(Detection(42, quad))
-    analysis = Pipeline(Settings(), detector).process(_frame([], width=320))
+    analysis = Pipeline(Settings(verify=False), detector).process(_frame([], width=320))
     assert detector.frames == [(240, 320)]
     (tag,) = analysis.tags
     assert (tag.tag_id, tag.x, tag.y, tag.area_px) == (42, 20.0, 20.0, 400.0)

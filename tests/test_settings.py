@@ -368,3 +368,15 @@ def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
         {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}
     )
     assert (settings.compressed_input_key, settings.detections_key, settings.tf_key) == ("", "", "")
+
+
+def test_verify_is_on_by_default_and_off_by_flag_or_file(tmp_path: Path) -> None:
+    assert Settings().verify is True
+    assert settings_from_args(_parse("--no-verify")).verify is False
+    assert settings_from_args(_parse("--verify")).verify is True
+    path = tmp_path / "s.toml"
+    path.write_text("verify = false\n")
+    assert load_settings(path).verify is False
+    path.write_text('verify = "no"\n')
+    with pytest.raises(SettingsError, match="verify"):
+        load_settings(path)

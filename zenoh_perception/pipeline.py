@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections import Counter
 from dataclasses import dataclass
 
 import cv2
@@ -10,6 +11,7 @@ import numpy as np
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.detect.verify import REASONS, Verifier
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import (
     closeness_from_area,
@@ -93,11 +95,18 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
 
 class TagFinder:
     """What runs on every frame, in the service and in the bench: the frame converted to grey,
-    the detector, then (``min_side_px`` > 0) tags whose mean side is shorter dropped."""
+    the detector, then (``min_side_px`` > 0) tags whose mean side is shorter dropped, then
+    (with a ``verifier``) the detections it vetoes dropped, counted by reason in ``vetoed``."""
 
-    def __init__(self, detector: Detector, min_side_px: float = 0.0) -> None:
+    def __init__(
+        self, detector: Detector, min_side_px: float = 0.0, verifier: Verifier | None = None
+    ) -> None:
         self.detector = detector
         self._min_side_px = min_side_px
+        self._verifier = verifier
+        # every reason present from the start: a status read from another thread copies a
+        # dict whose keys never change
+        self.vetoed: Counter[str] = Counter(dict.fromkeys(REASONS, 0))
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting it to grey first."""
@@ -107,6 +116,9 @@ class TagFinder:
         detections = self.detector.detect(gray)
         if self._min_side_px > 0.0 and detections:
             detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
+        if self._verifier is not None and detections:
+            detections, reasons = self._verifier.verify(gray, detections)
+            self.vetoed.update(reasons)
         return detections, converted - start
 
 
@@ -126,7 +138,8 @@ class Pipeline:
             detector = make_detector(
                 settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
             )
-        self._finder = TagFinder(detector, settings.min_tag_side_px)
+        verifier = Verifier(settings.dictionary) if settings.verify else None
+        self._finder = TagFinder(detector, settings.min_tag_side_px, verifier)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
             intrinsics_from_settings(settings),
@@ -146,6 +159,11 @@ class Pipeline:
     def use_camera_info(self, intrinsics: Intrinsics, width: int, height: int) -> None:
         """Intrinsics for frames of ``width`` x ``height`` only (a CameraInfo's)."""
         self._camera = (intrinsics, (width, height))
+
+    @property
+    def vetoed(self) -> Counter[str]:
+        """Detections vetoed so far, by reason (:data:`~.detect.verify.REASONS`)."""
+        return self._finder.vetoed
 
     def process(self, frame: Frame) -> Analysis:
         start = time.perf_counter()

@@ -151,6 +151,10 @@ class Settings:
         default=0.0,
         metadata=_doc("drop tags whose mean side is shorter than this, pixels; 0 = off"),
     )
+    verify: bool = field(
+        default=True,
+        metadata=_doc("re-read each small tag and veto look-alikes (never adds or changes one)"),
+    )
     # Limits and budget
     max_frame_bytes: int = field(
         default=DEFAULT_MAX_FRAME_BYTES,

@@ -17,7 +17,17 @@ from zenoh_perception.bench.framesets import RESOLUTIONS, Plan
 from zenoh_perception.bench.scoring import Tally
 
 SUMMARY_KEYS = set(Tally().summary())
-REPORT_KEYS = {"version", "machine", "plan", "sets", "e2e", "throughput", "e2e_setup", "goals"}
+REPORT_KEYS = {
+    "version",
+    "machine",
+    "plan",
+    "sets",
+    "lookalikes",
+    "e2e",
+    "throughput",
+    "e2e_setup",
+    "goals",
+}
 SET_KEYS = {"resolution", "video", "baseline", "tracking", "tracking_counters"}
 
 
@@ -35,6 +45,7 @@ def test_the_report_has_every_part_and_the_plan(quick: BenchRun) -> None:
         "video_frames": plan.video_frames,
         "video_fps": plan.video_fps,
         "distractor_frames": plan.distractor_frames,
+        "lookalike_frames": plan.lookalike_frames,
         "throughput_s": plan.throughput_s,
         "seed": plan.seed,
         "e2e_passes": plan.e2e_passes,
@@ -131,7 +142,13 @@ def test_main_writes_the_report_and_exits_1_when_a_goal_fails(
     # the flags change the quick plan, within bounds
     ((plan, with_e2e, shm),) = seen
     assert plan == Plan(
-        frames=1, video_frames=2, distractor_frames=6, throughput_s=1.0, seed=7, e2e_passes=1
+        frames=1,
+        video_frames=2,
+        distractor_frames=6,
+        lookalike_frames=1,
+        throughput_s=1.0,
+        seed=7,
+        e2e_passes=1,
     )
     assert (with_e2e, shm) == (False, False)
 
@@ -142,6 +159,7 @@ def test_the_full_plan_is_the_documented_one() -> None:
         video_frames=300,
         video_fps=60.0,
         distractor_frames=40,
+        lookalike_frames=4,
         throughput_s=8.0,
         seed=2024,
         e2e_passes=3,

@@ -29,6 +29,8 @@ def test_the_quick_run_has_every_goal_with_a_verdict(quick: BenchRun) -> None:
     assert "HD1080 at 60 Hz: every frame processed" in names
     for name in report["sets"]:
         assert f"{name}: tags found >= OpenCV default" in names
+    for family in report["lookalikes"]:
+        assert f"look-alikes {family}: false ids" in names
     assert all(isinstance(g["pass"], bool) and g["threshold"] for g in report["goals"])
     # the goals are a function of the rest of the report
     assert goals({k: v for k, v in report.items() if k != "goals"}) == report["goals"]

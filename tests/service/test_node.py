@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 import zenoh
@@ -24,7 +25,10 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
+from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.verify import REASONS
 from zenoh_perception.scene import render_markers
+from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.service.node import PerceptionService, run
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage
@@ -405,3 +409,18 @@ def test_negative_stamps_are_refused_alike_raw_and_cdr(rig: Rig) -> None:
     rig.put_cdr(SCENE, stamp_ns=0)
     _tag, record = rig.answer()
     assert record["stamp_ns"] == 0 and record["source"] == "cdr"
+
+
+def test_vetoed_look_alikes_are_counted_by_reason(rig: Rig) -> None:
+    image = lookalike_frame("keys", "DICT_4X4_50", np.random.default_rng(7))
+    grey = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    expected = len(OpenCvDetector("DICT_4X4_50").detect(np.asarray(grey, np.uint8)))
+    assert expected > 0  # OpenCV reads ids on these key-caps
+    rig.put_raw(image)
+    message, _ = rig.answer()
+    assert message.tag_id == -1
+    wait_until(
+        lambda: sum(rig.service.status()["vetoed_by_reason"].values()) == expected,
+        what="the vetoes counted",
+    )
+    assert set(rig.service.status()["vetoed_by_reason"]) == set(REASONS)

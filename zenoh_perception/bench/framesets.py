@@ -36,6 +36,7 @@ class Plan:
     video_frames: int = 300
     video_fps: float = 60.0
     distractor_frames: int = 40
+    lookalike_frames: int = 4  # per family and look-alike kind (bench.lookalikes)
     throughput_s: float = 8.0
     seed: int = 2024
     # end to end: lockstep passes over the HD720 independent frames and over the video, each
@@ -49,7 +50,14 @@ class Plan:
 
     @classmethod
     def quick(cls) -> Plan:
-        return cls(frames=6, video_frames=24, distractor_frames=6, throughput_s=1.0, e2e_passes=2)
+        return cls(
+            frames=6,
+            video_frames=24,
+            distractor_frames=6,
+            lookalike_frames=1,
+            throughput_s=1.0,
+            e2e_passes=2,
+        )
 
 
 @dataclass(frozen=True, slots=True)

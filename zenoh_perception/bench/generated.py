@@ -44,6 +44,7 @@ from zenoh_perception.bench.framesets import (
     frame_sets,
 )
 from zenoh_perception.bench.goals import goals
+from zenoh_perception.bench.lookalikes import lookalike_report
 from zenoh_perception.bench.plot import plot
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigterm_exits
 from zenoh_perception.bench.progress import Progress
@@ -52,6 +53,7 @@ from zenoh_perception.bench.runners import Baseline, Project, compare
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.bench.throughput import THROUGHPUT_HZ, measure_throughput
 from zenoh_perception.detect.tracking import tracking_counters
+from zenoh_perception.scene.lookalikes import FAMILIES, LOOKALIKE_KINDS
 
 #: The frame sets measured end to end.
 E2E_SETS: Final = (VIDEO_RESOLUTION, "video", "real-camera video")
@@ -62,6 +64,7 @@ def run_bench(plan: Plan, *, with_e2e: bool = True, shm: bool = True) -> dict[st
     end-to-end camera puts frames from shared memory (else plain bytes)."""
     work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
     work += (plan.frames + plan.video_frames) * 2
+    work += len(FAMILIES) * (len(LOOKALIKE_KINDS) + 1) * plan.lookalike_frames
     if with_e2e:
         work += (plan.frames + 2 * plan.video_frames) * max(1, plan.e2e_passes)
         work += 2 * round(THROUGHPUT_HZ * plan.throughput_s) + 30
@@ -89,6 +92,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
             "video_frames": plan.video_frames,
             "video_fps": plan.video_fps,
             "distractor_frames": plan.distractor_frames,
+            "lookalike_frames": plan.lookalike_frames,
             "throughput_s": plan.throughput_s,
             "seed": plan.seed,
             "e2e_passes": plan.e2e_passes,
@@ -111,6 +115,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         report["e2e"] = _end_to_end(sets, progress, shm=shm, passes=plan.e2e_passes)
         report["throughput"] = measure_throughput(plan, progress, shm=shm)
         report["e2e_setup"] = _e2e_setup(report, shm)
+    report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
     report["goals"] = goals(report)
     return report
 

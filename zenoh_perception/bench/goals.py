@@ -108,6 +108,8 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             default["processed"] == default["published"] and default["dropped"] == 0,
             f"dropped {default['dropped']}, {default['processed_hz']:.1f} Hz",
         )
+    if "lookalikes" in report:
+        rows += lookalike_goals(report["lookalikes"])
     return rows
 
 
@@ -276,5 +278,27 @@ def dataset_goals(report: dict[str, Any]) -> list[dict[str, Any]]:
                 f"frame-weighted over the videos; {others}",
             ),
             "-",
+        )
+    return rows
+
+
+def lookalike_goals(report: dict[str, Any]) -> list[dict[str, Any]]:
+    """The generated look-alike sets (:mod:`~zenoh_perception.bench.lookalikes`): per family,
+    the service reports no false id and finds every true tag OpenCV's default finds."""
+    rows: list[dict[str, Any]] = []
+    for family, row in report.items():
+        false_ids = row["service"]["false_ids"]
+        note = f"OpenCV default: {row['opencv']['false_ids']}"
+        rows.append(
+            goal(f"look-alikes {family}: false ids", false_ids, "== 0", false_ids == 0, note)
+        )
+        found, base = row["service"]["true_found"], row["opencv"]["true_found"]
+        rows.append(
+            goal(
+                f"look-alikes {family}: true tags >= OpenCV default",
+                found,
+                f">= {base}",
+                found >= base,
+            )
         )
     return rows

@@ -24,6 +24,7 @@ from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.scene import Scene
 from zenoh_perception.settings import Settings
@@ -65,16 +66,19 @@ class Baseline:
 class Project:
     """A service detector (default: ``tracking``; one per frame set, like one per stream) run
     on the BGRA frame as the service's pipeline runs it (:class:`TagFinder`: grey conversion
-    included, tags shorter than ``min_side_px`` dropped)."""
+    included, tags shorter than ``min_side_px`` dropped, look-alikes vetoed when ``verify``)."""
 
     def __init__(
         self,
         dictionary: str = DICTIONARY,
         detector: Detector | None = None,
         min_side_px: float = 0.0,
+        *,
+        verify: bool = True,
     ) -> None:
         self.detector = make_detector("tracking", dictionary) if detector is None else detector
-        self._finder = TagFinder(self.detector, min_side_px)
+        verifier = Verifier(dictionary) if verify else None
+        self._finder = TagFinder(self.detector, min_side_px, verifier)
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
@@ -91,7 +95,7 @@ def pair(dictionary: str, settings: Settings) -> dict[str, Runner]:
     )
     return {
         "opencv": Baseline(dictionary),
-        "service": Project(dictionary, detector, settings.min_tag_side_px),
+        "service": Project(dictionary, detector, settings.min_tag_side_px, verify=settings.verify),
     }
 
 

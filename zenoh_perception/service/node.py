@@ -551,6 +551,7 @@ class PerceptionService:
             "worker_alive": not self.failed.is_set(),
             **snapshot,
             "liveliness": {"other_services": self._other_tokens},
+            "vetoed_by_reason": dict(self._pipeline.vetoed),
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
                 "published": self._debug_images,

@@ -1,0 +1,140 @@
+"""The verification layer: it vetoes generated look-alikes that OpenCV reads as ids, keeps
+every true tag OpenCV finds (small, blurred, oblique, in shadow, JPEG'd) in every family,
+and with ``verify = false`` the service gives OpenCV's answer unchanged."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import cv2
+import numpy as np
+import pytest
+
+from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.verify import REASONS, Verifier, mean_side
+from zenoh_perception.pipeline import Pipeline, TagFinder
+from zenoh_perception.scene import render_markers
+from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import ENCODINGS, Frame
+
+#: Frames of each kind drawn per test: enough that OpenCV reads ids on them.
+FRAMES = 3
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), np.uint8)
+
+
+def _frame(image: np.ndarray) -> Frame:
+    return Frame(image, ENCODINGS["bgra8"], None, "test", None)
+
+
+@pytest.mark.parametrize("kind", ["keys", "text", "tiles"])
+@pytest.mark.parametrize("dictionary", ["DICT_4X4_50", "DICT_6X6_250", "DICT_APRILTAG_36h11"])
+def test_look_alikes_that_opencv_reads_are_vetoed(kind: str, dictionary: str) -> None:
+    rng = np.random.default_rng(7)
+    opencv = OpenCvDetector(dictionary)
+    verifier = Verifier(dictionary)
+    reported = 0
+    reasons: Counter[str] = Counter()
+    for _ in range(FRAMES):
+        grey = _grey(lookalike_frame(kind, dictionary, rng))
+        found = opencv.detect(grey)
+        reported += len(found)
+        kept, vetoed = verifier.verify(grey, found)
+        assert kept == []
+        reasons.update(vetoed)
+    assert reported > 0  # OpenCV does take them for markers
+    assert set(reasons) <= set(REASONS)
+
+
+def test_another_familys_marker_is_vetoed() -> None:
+    # DICT_4X4_1000 reads tag36h11 id 32 (an 8-cell grid) as its id 391
+    quad = np.array([[40, 40], [140, 40], [140, 140], [40, 140]], np.float64)
+    grey = _grey(render_markers(200, 200, [(32, quad)], dictionary="DICT_APRILTAG_36h11"))
+    found = OpenCvDetector("DICT_4X4_1000").detect(grey)
+    assert [d.tag_id for d in found] == [391]
+    assert Verifier("DICT_4X4_1000").verify(grey, found) == ([], ["grid"])
+    # and its own family's reading is kept
+    (own,) = OpenCvDetector("DICT_APRILTAG_36h11").detect(grey)
+    assert own.tag_id == 32 and Verifier("DICT_APRILTAG_36h11").check(grey, own) is None
+
+
+@pytest.mark.parametrize("dictionary", FAMILIES)
+def test_true_tags_from_10_px_are_all_kept(dictionary: str) -> None:
+    rng = np.random.default_rng(11)
+    opencv = OpenCvDetector(dictionary)
+    verifier = Verifier(dictionary)
+    found_sides: list[float] = []
+    for _ in range(FRAMES):
+        image, tags = true_tag_frame(dictionary, rng, side_px=(10.0, 40.0))
+        grey = _grey(image)
+        drawn = {t.tag_id for t in tags}
+        found = [d for d in opencv.detect(grey) if d.tag_id in drawn]
+        kept, reasons = verifier.verify(grey, found)
+        assert kept == found, reasons
+        found_sides += [mean_side(d.corners) for d in found]
+    assert len(found_sides) >= 10
+    assert min(found_sides) < 16.0  # small ones were read, and kept
+
+
+def test_kept_detections_are_opencvs_own_objects() -> None:
+    rng = np.random.default_rng(5)
+    image, _ = true_tag_frame("DICT_4X4_50", rng)
+    grey = _grey(image)
+    found = OpenCvDetector("DICT_4X4_50").detect(grey)
+    kept, reasons = Verifier("DICT_4X4_50").verify(grey, found)
+    assert reasons == [] and len(kept) == len(found) > 0
+    assert all(k is f for k, f in zip(kept, found, strict=True))
+
+
+def test_verify_false_gives_opencvs_answer_unchanged() -> None:
+    rng = np.random.default_rng(7)
+    image = lookalike_frame("keys", "DICT_4X4_50", rng)
+    expected = OpenCvDetector("DICT_4X4_50").detect(_grey(image))
+    assert expected  # a frame OpenCV reads ids on, which the verifier would veto
+    off = Pipeline(Settings(verify=False)).process(_frame(image))
+    assert [(t.tag_id, t.corners) for t in off.tags] == [
+        (d.tag_id, tuple((float(x), float(y)) for x, y in d.corners.astype(np.float64)))
+        for d in expected
+    ]
+    on = Pipeline(Settings())
+    assert on.process(_frame(image)).tags == ()
+    assert sum(on.vetoed.values()) == len(expected)
+
+
+def test_the_finder_counts_vetoes_by_reason() -> None:
+    rng = np.random.default_rng(7)
+    image = lookalike_frame("keys", "DICT_4X4_50", rng)
+    finder = TagFinder(OpenCvDetector("DICT_4X4_50"), verifier=Verifier("DICT_4X4_50"))
+    assert set(finder.vetoed) == set(REASONS) and sum(finder.vetoed.values()) == 0
+    detections, _ = finder.find(_frame(image))
+    assert detections == []
+    assert sum(finder.vetoed.values()) > 0 and set(finder.vetoed) == set(REASONS)
+
+
+def test_a_marker_at_the_image_edge_is_read_without_its_missing_quiet_zone() -> None:
+    # the quiet zone outside the image is left out, not read as black
+    rng = np.random.default_rng(2)
+    image, tags = true_tag_frame("DICT_4X4_50", rng, side_px=(30.0, 30.0))
+    tag = tags[0]
+    x0, y0 = np.floor(tag.corners.min(axis=0)).astype(int)
+    grey = _grey(image)[y0:, x0:]  # the frame cut at the marker's top-left corner
+    detection = Detection(tag.tag_id, (tag.corners - (x0, y0)).astype(np.float32))
+    assert Verifier("DICT_4X4_50").check(grey, detection) is None
+
+
+def test_with_several_dictionaries_each_detection_is_read_on_its_own_grid() -> None:
+    def quad(x0: float, y0: float, side: float) -> np.ndarray:
+        return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+    left = render_markers(640, 480, [(7, quad(60, 60, 150))])
+    right = render_markers(640, 480, [(23, quad(380, 200, 150))], dictionary="DICT_APRILTAG_36h11")
+    gray = np.minimum(left, right)[:, :, 1].copy()
+    names = "DICT_4X4_50, DICT_APRILTAG_36h11"
+    found = OpenCvDetector(names).detect(gray)
+    assert sorted(d.dictionary for d in found) == ["DICT_4X4_50", "DICT_APRILTAG_36h11"]
+    kept, reasons = Verifier(names).verify(gray, found)
+    assert kept == found and reasons == []
