@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from zenoh_perception.camera.sources import FrameSource, SourceFrame, open_source
 from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.errors import FrameDecodeError
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import mean_side
@@ -176,6 +177,8 @@ def probe(path: Path, *, max_frames: int = DEFAULT_MAX_FRAMES, topic: str | None
     source = open_source(path, topic=topic)
     result = Probe(str(path), source.kind, frames_total=source.count)
     detector = OpenCvDetector(", ".join(READ_WITH))
+    # the service's veto, so that look-alikes (key-caps, lettering) propose no family
+    verifier = Verifier(", ".join(READ_WITH))
     max_pixels = Settings().max_frame_pixels
     for frame in _sampled(source, max_frames):
         try:
@@ -184,9 +187,11 @@ def probe(path: Path, *, max_frames: int = DEFAULT_MAX_FRAMES, topic: str | None
             result.unreadable += 1
             continue
         result.frames_read += 1
-        for tallies, image in ((result.found, grey), (result.mirrored, cv2.flip(grey, 1))):
+        mirrored = np.ascontiguousarray(cv2.flip(grey, 1), dtype=np.uint8)
+        for tallies, image in ((result.found, grey), (result.mirrored, mirrored)):
             per_family: dict[str, list[tuple[int, float]]] = defaultdict(list)
-            for detection in detector.detect(np.ascontiguousarray(image)):
+            kept, _vetoed = verifier.verify(image, detector.detect(image))
+            for detection in kept:
                 per_family[detection.dictionary].append(
                     (detection.tag_id, mean_side(detection.corners))
                 )
