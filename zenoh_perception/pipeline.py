@@ -104,6 +104,17 @@ class TagFinder:
         return detections, converted - start
 
 
+def detector_for(settings: Settings) -> Detector:
+    """The detector the settings name: what :class:`Pipeline` runs unless given another (the
+    service's deadline runs it in a child process, built there by this function). Sets the
+    process's OpenCV threads as ``opencv_threads`` says."""
+    if settings.opencv_threads > 0:
+        cv2.setNumThreads(settings.opencv_threads)
+    return make_detector(
+        settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
+    )
+
+
 class Pipeline:
     """Turns decoded frames into an :class:`Analysis`.
 
@@ -115,9 +126,7 @@ class Pipeline:
         if settings.opencv_threads > 0:
             cv2.setNumThreads(settings.opencv_threads)
         if detector is None:
-            detector = make_detector(
-                settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
-            )
+            detector = detector_for(settings)
         self._finder = TagFinder(detector, settings.min_tag_side_px)
         self.intrinsics: Intrinsics | None = intrinsics_from_settings(settings)
         self._policy = Policy(settings.policy)

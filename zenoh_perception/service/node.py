@@ -27,6 +27,7 @@ import struct
 import threading
 import time
 from dataclasses import asdict, dataclass
+from functools import partial
 from typing import Any, Final
 
 import cv2
@@ -36,6 +37,7 @@ from zenoh_perception import __version__
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import (
     CameraInfoError,
+    FrameAbandonedError,
     FrameDecodeError,
     IntrinsicsError,
     ProcessingError,
@@ -43,10 +45,11 @@ from zenoh_perception.errors import (
     SettingsError,
     zenoh_error_text,
 )
-from zenoh_perception.pipeline import Analysis, Pipeline
+from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
 from zenoh_perception.service.stats import LogGate, ServiceStats
+from zenoh_perception.service.watchdog import IsolatedDetector
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import decode_camera_info
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
@@ -92,13 +95,24 @@ class PerceptionService:
         self, session: zenoh.Session, settings: Settings, *, detector: Detector | None = None
     ) -> None:
         self.settings = settings
-        self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
+        self.stats = ServiceStats(
+            frame_budget_ms=settings.frame_budget_ms,
+            frame_deadline_ms=settings.frame_deadline_ms or None,
+        )
         self._session = session
+        self._stop = threading.Event()
+        # With a deadline the settings' detector runs in a child process that a stalled frame
+        # is abandoned with (service/watchdog.py); a detector given here runs in-process.
+        self._isolated: IsolatedDetector | None = None
+        if detector is None and settings.frame_deadline_ms > 0:
+            self._isolated = IsolatedDetector(
+                partial(detector_for, settings), settings.frame_deadline_ms / 1e3, stop=self._stop
+            )
+            detector = self._isolated
         self._pipeline = Pipeline(settings, detector)
         self._codec = TagCodec(settings.ros_package)
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
-        self._stop = threading.Event()
         #: Set when the worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
         self._debug_watched = threading.Event()
@@ -145,6 +159,8 @@ class PerceptionService:
 
     def _declare(self) -> None:
         s, session = self.settings, self._session
+        if self._isolated is not None:
+            self._isolated.start()
         self._tag_pub = session.declare_publisher(
             s.tag_key, encoding=zenoh.Encoding.APPLICATION_CDR, express=True
         )
@@ -188,6 +204,8 @@ class PerceptionService:
         self._mailbox.close()
         for thread in self._threads:
             thread.join(timeout=2.0)
+        if self._isolated is not None:
+            self._isolated.close()
         for entity in reversed(self._declared):
             try:
                 entity.undeclare()
@@ -293,6 +311,10 @@ class PerceptionService:
         try:
             self._process(arrival)
         except FrameDecodeError as err:
+            self._reject(err.reason, err)
+        except FrameAbandonedError as err:
+            # No tag and no record for it; the detector was restarted for the next frame.
+            self.stats.on_abandoned(err.elapsed_ms)
             self._reject(err.reason, err)
         except ProcessingError as err:
             # Failed before the tag was published: the frame is rejected.
@@ -469,7 +491,7 @@ class PerceptionService:
             log.info(
                 "event=stats received=%d processed=%d dropped=%d rejected=%d fps=%.1f "
                 "latency_p50_ms=%.2f latency_p99_ms=%.2f over_budget=%d detect_ms_max=%.2f "
-                "publish_errors=%d processing_errors=%d",
+                "abandoned=%d abandoned_ms_max=%.2f publish_errors=%d processing_errors=%d",
                 frames["received"],
                 frames["processed"],
                 frames["dropped"],
@@ -479,6 +501,8 @@ class PerceptionService:
                 latency["p99"],
                 budget["over_budget"],
                 budget["detect_ms_max"],
+                budget["abandoned"],
+                budget["abandoned_ms_max"],
                 sum(status["publish_errors"].values()),
                 sum(status["processing_errors"].values()),
             )
