@@ -6,7 +6,8 @@ machine and in one run:
 1. OpenCV's default ``ArucoDetector`` alone on checkerboards whose squares sit just above its
    smallest marker (HD720 / 10 px, HD1080 / 15 px, 4096 x 4096 / 32 px) and on generated HD720
    scenes;
-2. the alternatives to a child process, in this process: a second thread reading a normal
+2. what the child process costs a normal frame (the same detector here and there, alternately),
+   and the alternatives to it, in this process: a second thread reading a normal
    frame while a board stalls the first; a pre-check (adaptive threshold and contour count on
    a half-size image), its cost and its counts; OpenCV parameters that bound the work, the
    board's time with them and what they change on normal frames;
@@ -25,6 +26,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +46,10 @@ from zenoh_perception.bench.processes import (
 )
 from zenoh_perception.bench.rig import percentile
 from zenoh_perception.bench.runners import DICTIONARY, rotation
+from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
+from zenoh_perception.service.watchdog import IsolatedDetector
 from zenoh_perception.wire.frames import RawFrameMeta
 
 Gray = npt.NDArray[np.uint8]
@@ -170,6 +174,28 @@ def bounded_parameters(normal: Sequence[Gray]) -> dict[str, Any]:
     return out
 
 
+def child_process(normal: Sequence[Gray], passes: int = 3) -> dict[str, Any]:
+    """The same detector in this process and in the deadline's child process, alternately on
+    the same frames: what the child costs per frame (the hop, not the detection)."""
+    local = make_detector("opencv", DICTIONARY)
+    factory = partial(make_detector, "opencv", DICTIONARY)
+    here: list[float] = []
+    there: list[float] = []
+    with IsolatedDetector(factory, 10.0) as isolated:
+        isolated.detect(normal[0])  # the child's detector built
+        for _ in range(passes):
+            for image in normal:
+                here.append(_ms(local.detect, image))
+                there.append(_ms(isolated.detect, image))
+    extra = np.subtract(there, here)
+    return {
+        "in_process_median_ms": float(np.median(here)),
+        "child_median_ms": float(np.median(there)),
+        "extra_median_ms": float(np.median(extra)),
+        "extra_mean_ms": float(np.mean(extra)),
+    }
+
+
 # -- through service processes ---------------------------------------------------------------
 
 
@@ -272,6 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "second_thread": second_thread(normal),
         "pre_check": pre_check(normal),
         "bounded_parameters": bounded_parameters(normal),
+        "child_process": child_process(normal),
     }
     if not args.no_services:
         report["services"] = services(args.frames)

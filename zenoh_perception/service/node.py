@@ -6,7 +6,9 @@ Threads:
   latest-frame-wins mailbox (O(1), no copy, no decoding).
 - One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
   zero-copy view, runs the pipeline and publishes ``tag`` then the record (and the debug image
-  while it is watched).
+  while it is watched). With ``frame_deadline_ms`` the detector itself runs in a child
+  process (:mod:`~zenoh_perception.service.watchdog`): a frame it does not finish in time is
+  abandoned (a rejection, counted with its time) and the next frame read by a fresh child.
 - One reporter thread writes the periodic stats line.
 
 Everything the worker does with a sample, up to and including each publication, runs inside

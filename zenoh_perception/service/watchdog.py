@@ -114,7 +114,9 @@ class IsolatedDetector:
         self._factory = factory
         self._stop = stop if stop is not None else threading.Event()
         self._context = multiprocessing.get_context("forkserver")
-        self._context.set_forkserver_preload([__name__])
+        # The fork server imports this module and the factory's once: a child starts warm.
+        origin = getattr(factory, "func", factory)
+        self._context.set_forkserver_preload([__name__, origin.__module__])
         self._segment: shared_memory.SharedMemory | None = None
         self._active: _Child | None = None
         self._spare: _Child | None = None
