@@ -46,6 +46,10 @@ def _misbehaving() -> _Misbehaving:
     return _Misbehaving()
 
 
+def _dies_at_start() -> _Misbehaving:
+    os._exit(3)
+
+
 def _gray(tag_id: int = 3) -> npt.NDArray[np.uint8]:
     frame = marker_frame(640, 480, tag_id, side=120)
     bgra = np.frombuffer(frame.payload, np.uint8).reshape(480, 640, 4)
@@ -114,6 +118,13 @@ def test_a_detector_error_is_a_processing_error_and_the_child_carries_on(
     assert caught.value.stage == "detect"
     assert detector.restarts == 0
     assert [d.tag_id for d in detector.detect(_gray())] == [3]
+
+
+def test_a_child_that_dies_before_it_is_ready_is_a_processing_error() -> None:
+    with IsolatedDetector(_dies_at_start, 5.0) as isolated:
+        with pytest.raises(ProcessingError, match="exit code 3"):
+            isolated.detect(_gray())
+        assert isolated.restarts == 1
 
 
 def test_stop_ends_a_stalled_read_at_once(stop: threading.Event) -> None:

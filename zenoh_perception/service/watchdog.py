@@ -31,7 +31,7 @@ from collections.abc import Callable
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
-from typing import Final
+from typing import Any, Final
 
 import cv2
 import numpy as np
@@ -155,8 +155,9 @@ class IsolatedDetector:
         started = time.monotonic()
         if not child.ready:
             # A fresh child builds its detector; that time is not the frame's.
-            self._wait(child, None)
-            child.conn.recv()
+            if not self._wait(child, None):  # stopped meanwhile
+                raise FrameAbandonedError(0.0, self.deadline_s * 1e3)
+            self._receive(child)
             child.ready = True
             started = time.monotonic()
         height, width = gray.shape[:2]
@@ -167,15 +168,25 @@ class IsolatedDetector:
             elapsed_ms = (time.monotonic() - started) * 1e3
             self._replace()
             raise FrameAbandonedError(elapsed_ms, self.deadline_s * 1e3)
-        try:
-            found: list[Detection] | str = child.conn.recv()
-        except (EOFError, OSError) as err:
-            code = child.process.exitcode
-            self._replace()
-            raise ProcessingError("detect", f"detector process died (exit code {code})") from err
+        found: list[Detection] | str = self._receive(child)
         if isinstance(found, str):
             raise ProcessingError("detect", found)
         return found
+
+    def _receive(self, child: _Child) -> Any:
+        """What ``child`` sent; a child that died instead is replaced.
+
+        Raises:
+            ProcessingError: the child died (stage ``detect``).
+
+        """
+        try:
+            return child.conn.recv()
+        except (EOFError, OSError) as err:
+            child.process.join(timeout=1.0)
+            code = child.process.exitcode
+            self._replace()
+            raise ProcessingError("detect", f"detector process died (exit code {code})") from err
 
     def _wait(self, child: _Child, until: float | None) -> bool:
         """Whether ``child`` answered (or died) before ``until`` and before ``stop``."""
