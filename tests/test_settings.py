@@ -167,6 +167,9 @@ def test_every_number_has_bounds_documented_above_its_key() -> None:
         ({"max_frame_bytes": 2**40}, "max_frame_bytes"),
         ({"max_frame_pixels": 0}, "max_frame_pixels"),
         ({"frame_budget_ms": 0}, "frame_budget_ms"),
+        ({"frame_deadline_ms": 5}, "frame_deadline_ms"),
+        ({"frame_deadline_ms": -1}, "frame_deadline_ms"),
+        ({"frame_deadline_ms": 600_001}, "frame_deadline_ms"),
         ({"tag_sizes": {"2147483648": 0.2}}, "tag_sizes"),
         ({"tag_sizes": {"3": 500}}, "tag_sizes"),
         ({"camera_fx": 1e9, "camera_fy": 1e9, "camera_cx": 320, "camera_cy": 240}, "camera_fx"),
@@ -192,6 +195,7 @@ def test_numbers_at_their_bounds_and_zero_where_it_means_off_are_accepted() -> N
             "max_frame_bytes": 4 << 30,
             "max_frame_pixels": 16384 * 16384,
             "frame_budget_ms": 0.1,
+            "frame_deadline_ms": 0,
             "camera_fx": 100_000,
             "camera_fy": 30_000,
             "camera_cx": 0.5,
@@ -199,6 +203,7 @@ def test_numbers_at_their_bounds_and_zero_where_it_means_off_are_accepted() -> N
         }
     )
     assert settings.stats_interval_s == 0.0
+    assert settings.frame_deadline_ms == 0.0
 
 
 # -- keys --------------------------------------------------------------------------------------

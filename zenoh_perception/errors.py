@@ -153,6 +153,18 @@ class JsonPayloadError(MessageDecodeError):
         super().__init__(f"{reason}: {detail}", reason=reason)
 
 
+class FrameAbandonedError(PerceptionError):
+    """The detector did not finish a frame within the deadline (``frame_deadline_ms``), or
+    the service stopped meanwhile: the frame was given up and the detector restarted.
+    ``elapsed_ms`` is how long the frame ran."""
+
+    reason = "abandoned"
+
+    def __init__(self, elapsed_ms: float, deadline_ms: float) -> None:
+        super().__init__(f"detection ran {elapsed_ms:.0f} ms (deadline {deadline_ms:g} ms)")
+        self.elapsed_ms = elapsed_ms
+
+
 class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
 

@@ -122,6 +122,17 @@ class TagFinder:
         return detections, converted - start
 
 
+def detector_for(settings: Settings) -> Detector:
+    """The detector the settings name: what :class:`Pipeline` runs unless given another (the
+    service's deadline runs it in a child process, built there by this function). Sets the
+    process's OpenCV threads as ``opencv_threads`` says."""
+    if settings.opencv_threads > 0:
+        cv2.setNumThreads(settings.opencv_threads)
+    return make_detector(
+        settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
+    )
+
+
 class Pipeline:
     """Turns decoded frames into an :class:`Analysis`.
 
@@ -135,9 +146,7 @@ class Pipeline:
         if settings.opencv_threads > 0:
             cv2.setNumThreads(settings.opencv_threads)
         if detector is None:
-            detector = make_detector(
-                settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
-            )
+            detector = detector_for(settings)
         verifier = Verifier(settings.dictionary) if settings.verify else None
         self._finder = TagFinder(detector, settings.min_tag_side_px, verifier)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size

@@ -168,6 +168,10 @@ class Settings:
         default=100.0,
         metadata=_doc("frames whose decode + convert + detect take longer are counted over budget"),
     )
+    frame_deadline_ms: float = field(
+        default=400.0,
+        metadata=_doc("a detection running longer is abandoned (counted); 0 = no deadline"),
+    )
     # Selection and closeness
     policy: str = field(default="closest", metadata=_doc("tag selection: closest | center"))
     metric: str = field(default="area", metadata=_doc("closeness metric: area | distance"))
@@ -263,6 +267,7 @@ BOUNDS: Final[Mapping[str, Bound]] = {
     "max_frame_bytes": Bound(1024, 4 << 30),
     "max_frame_pixels": Bound(1, MAX_DIMENSION * MAX_DIMENSION),
     "frame_budget_ms": Bound(0.1, 60_000),
+    "frame_deadline_ms": Bound(10, 600_000, zero="off"),
     "max_range_m": Bound(0.01, 10_000),
     "tag_size_m": Bound(0.001, 100, zero="unknown"),
     "camera_fx": Bound(FOCAL_PX_MIN, FOCAL_PX_MAX, zero="unknown"),

@@ -62,7 +62,22 @@ def test_budget_counts_frames_over_it_and_keeps_the_worst_times() -> None:
         "over_budget": 2,
         "frame_ms_max": 24.5,
         "detect_ms_max": 21.0,
+        "frame_deadline_ms": None,
+        "abandoned": 0,
+        "abandoned_ms_max": 0.0,
+        "abandoned_ms_last": 0.0,
     }
+
+
+def test_abandoned_frames_are_counted_with_their_longest_and_last_time() -> None:
+    stats = ServiceStats(frame_deadline_ms=400.0)
+    stats.on_abandoned(431.5)
+    stats.on_abandoned(402.0)
+    budget = stats.snapshot().as_dict()["budget"]
+    assert budget["frame_deadline_ms"] == 400.0
+    assert budget["abandoned"] == 2
+    assert budget["abandoned_ms_max"] == 431.5
+    assert budget["abandoned_ms_last"] == 402.0
 
 
 def test_publish_processing_and_camera_info_counters() -> None:

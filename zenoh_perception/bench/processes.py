@@ -143,7 +143,12 @@ class ServiceProcess:
     """
 
     def __init__(
-        self, name: str, detector: str, bench_endpoint: str, dictionary: str = DICTIONARY
+        self,
+        name: str,
+        detector: str,
+        bench_endpoint: str,
+        dictionary: str = DICTIONARY,
+        extra: Sequence[str] = (),
     ) -> None:
         self.name = name
         prefix = f"bench/{name}"
@@ -176,6 +181,7 @@ class ServiceProcess:
             f"{prefix}/alive",
             "--stats-interval-s",
             "0",
+            *extra,  # more flags of ``run``
             module=module,
         )
 

@@ -7,9 +7,10 @@ left to right. Per file it prints which families and ids were found, in how many
 large, and the ``run`` flags to use: the smallest dictionary of the family that holds every id
 seen.
 
-Each marker then goes through the service's veto (``verify``). A look-alike that passes it can
-still decode as a valid id of some family on a frame or two: a family is proposed only when it has at least a fifth of the tags (counted once per frame)
-of the family seen most, and a family seen in a single frame of a video is marked as doubtful.
+Each marker then goes through the service's veto (``verify``). A look-alike that passes it
+can still decode as a valid id of some family on a frame or two: a family is proposed only
+when it has at least a fifth of the tags (counted once per frame) of the family seen most,
+and a family seen in a single frame of a video is marked as doubtful.
 """
 
 from __future__ import annotations

@@ -6,7 +6,9 @@ Threads:
   latest-frame-wins mailbox (O(1), no copy, no decoding).
 - One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
   zero-copy view, runs the pipeline and publishes ``tag`` then the record (and the debug image
-  while it is watched).
+  while it is watched). With ``frame_deadline_ms`` the detector itself runs in a child
+  process (:mod:`~zenoh_perception.service.watchdog`): a frame it does not finish in time is
+  abandoned (a rejection, counted with its time) and the next frame read by a fresh child.
 - One reporter thread writes the periodic stats line.
 
 Everything the worker does with a sample, up to and including each publication, runs inside
@@ -27,6 +29,7 @@ import struct
 import threading
 import time
 from dataclasses import asdict, dataclass
+from functools import partial
 from typing import Any, Final
 
 import cv2
@@ -36,6 +39,7 @@ from zenoh_perception import __version__
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import (
     CameraInfoError,
+    FrameAbandonedError,
     FrameDecodeError,
     IntrinsicsError,
     ProcessingError,
@@ -43,12 +47,13 @@ from zenoh_perception.errors import (
     SettingsError,
     zenoh_error_text,
 )
-from zenoh_perception.pipeline import Analysis, Pipeline
+from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
 from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
 from zenoh_perception.service.stats import LogGate, ServiceStats
+from zenoh_perception.service.watchdog import IsolatedDetector
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.pose import Intrinsics
 from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
@@ -99,20 +104,31 @@ class PerceptionService:
         self, session: zenoh.Session, settings: Settings, *, detector: Detector | None = None
     ) -> None:
         self.settings = settings
-        self.stats = ServiceStats(frame_budget_ms=settings.frame_budget_ms)
+        self.stats = ServiceStats(
+            frame_budget_ms=settings.frame_budget_ms,
+            frame_deadline_ms=settings.frame_deadline_ms or None,
+        )
         self._session = session
         self._ros = RosTransport(session, settings)
         # Callbacks read the zid from here: asking the session while it closes raises.
         self._zid = str(session.zid())
         self._other_tokens = 0
         self._other_lock = threading.Lock()
+        self._stop = threading.Event()
+        # With a deadline the settings' detector runs in a child process that a stalled frame
+        # is abandoned with (service/watchdog.py); a detector given here runs in-process.
+        self._isolated: IsolatedDetector | None = None
+        if detector is None and settings.frame_deadline_ms > 0:
+            self._isolated = IsolatedDetector(
+                partial(detector_for, settings), settings.frame_deadline_ms / 1e3, stop=self._stop
+            )
+            detector = self._isolated
         self._pipeline = Pipeline(settings, detector)
         self._camera_info: tuple[Intrinsics, tuple[int, int]] | None = None
         self._codec = TagCodec(settings.ros_package)
         self._ros_outputs = RosOutputs(settings)
         self._gate = LogGate(settings.log_interval_s)
         self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
-        self._stop = threading.Event()
         #: Set when the worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
         self._debug_watched = threading.Event()
@@ -164,6 +180,8 @@ class PerceptionService:
 
     def _declare(self) -> None:
         s, session = self.settings, self._session
+        if self._isolated is not None:
+            self._isolated.start()
         node_token = self._ros.declare_node()
         if node_token is not None:
             self._declared.append(node_token)
@@ -213,6 +231,8 @@ class PerceptionService:
         self._mailbox.close()
         for thread in self._threads:
             thread.join(timeout=2.0)
+        if self._isolated is not None:
+            self._isolated.close()
         for entity in reversed(self._declared):
             try:
                 entity.undeclare()
@@ -337,6 +357,10 @@ class PerceptionService:
         try:
             self._process(arrival)
         except FrameDecodeError as err:
+            self._reject(err.reason, err)
+        except FrameAbandonedError as err:
+            # No tag and no record for it; the detector was restarted for the next frame.
+            self.stats.on_abandoned(err.elapsed_ms)
             self._reject(err.reason, err)
         except ProcessingError as err:
             # Failed before the tag was published: the frame is rejected.
@@ -578,7 +602,7 @@ class PerceptionService:
             log.info(
                 "event=stats received=%d processed=%d dropped=%d rejected=%d fps=%.1f "
                 "latency_p50_ms=%.2f latency_p99_ms=%.2f over_budget=%d detect_ms_max=%.2f "
-                "publish_errors=%d processing_errors=%d",
+                "abandoned=%d abandoned_ms_max=%.2f publish_errors=%d processing_errors=%d",
                 frames["received"],
                 frames["processed"],
                 frames["dropped"],
@@ -588,6 +612,8 @@ class PerceptionService:
                 latency["p99"],
                 budget["over_budget"],
                 budget["detect_ms_max"],
+                budget["abandoned"],
+                budget["abandoned_ms_max"],
                 sum(status["publish_errors"].values()),
                 sum(status["processing_errors"].values()),
             )

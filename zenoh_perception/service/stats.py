@@ -32,6 +32,10 @@ class StatsSnapshot:
     over_budget: int = 0
     frame_ms_max: float = 0.0
     detect_ms_max: float = 0.0
+    frame_deadline_ms: float | None = None
+    abandoned: int = 0
+    abandoned_ms_max: float = 0.0
+    abandoned_ms_last: float = 0.0
     publish_errors: dict[str, int] = field(default_factory=dict)
     processing_errors: dict[str, int] = field(default_factory=dict)
     camera_info_received: int = 0
@@ -59,6 +63,10 @@ class StatsSnapshot:
                 "over_budget": self.over_budget,
                 "frame_ms_max": round(self.frame_ms_max, 3),
                 "detect_ms_max": round(self.detect_ms_max, 3),
+                "frame_deadline_ms": self.frame_deadline_ms,
+                "abandoned": self.abandoned,
+                "abandoned_ms_max": round(self.abandoned_ms_max, 3),
+                "abandoned_ms_last": round(self.abandoned_ms_last, 3),
             },
             "publish_errors": {name: self.publish_errors.get(name, 0) for name in OUTPUTS},
             "processing_errors": dict(self.processing_errors),
@@ -76,7 +84,8 @@ class ServiceStats:
     ``fps`` is frames over wall time: the frames finished within the last ``fps_window_s``
     seconds divided by that window (or by the uptime while it is shorter). A frame whose own
     time (decode, convert, detect) exceeds ``frame_budget_ms`` (None: no budget) counts as
-    over budget.
+    over budget. A frame the detector did not finish within ``frame_deadline_ms`` is
+    abandoned: counted with how long it ran (and rejected, by the caller).
     """
 
     def __init__(
@@ -85,6 +94,7 @@ class ServiceStats:
         clock: Callable[[], float] = time.monotonic,
         *,
         frame_budget_ms: float | None = None,
+        frame_deadline_ms: float | None = None,
         fps_window_s: float = FPS_WINDOW_S,
     ) -> None:
         self._lock = threading.Lock()
@@ -95,6 +105,10 @@ class ServiceStats:
         self._done_at: deque[float] = deque()
         self._fps_window_s = fps_window_s
         self._frame_budget_ms = frame_budget_ms
+        self._frame_deadline_ms = frame_deadline_ms
+        self._abandoned = 0
+        self._abandoned_ms_max = 0.0
+        self._abandoned_ms_last = 0.0
         self.received = 0
         self.processed = 0
         self.dropped = 0
@@ -133,6 +147,13 @@ class ServiceStats:
             self._detect_ms_max = max(self._detect_ms_max, detect_ms)
             if self._frame_budget_ms is not None and frame_ms > self._frame_budget_ms:
                 self._over_budget += 1
+
+    def on_abandoned(self, elapsed_ms: float) -> None:
+        """One frame given up after ``elapsed_ms`` of detection."""
+        with self._lock:
+            self._abandoned += 1
+            self._abandoned_ms_last = elapsed_ms
+            self._abandoned_ms_max = max(self._abandoned_ms_max, elapsed_ms)
 
     def on_publish_error(self, output: str) -> None:
         with self._lock:
@@ -185,6 +206,10 @@ class ServiceStats:
                 over_budget=self._over_budget,
                 frame_ms_max=self._frame_ms_max,
                 detect_ms_max=self._detect_ms_max,
+                frame_deadline_ms=self._frame_deadline_ms,
+                abandoned=self._abandoned,
+                abandoned_ms_max=self._abandoned_ms_max,
+                abandoned_ms_last=self._abandoned_ms_last,
                 publish_errors=dict(self._publish_errors),
                 processing_errors=dict(self._processing_errors),
                 camera_info_received=self._camera_info_received,
