@@ -291,6 +291,10 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.peer is not None:
+        from zenoh_perception.bench import peer  # noqa: PLC0415
+
+        return peer.main(args)
     if args.dataset is not None:
         from zenoh_perception.bench import dataset  # noqa: PLC0415
 
@@ -362,6 +366,18 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="end to end: the camera puts plain bytes (Zenoh copies them on put) instead of "
         "frames from a shared-memory buffer",
+    )
+    group = parser.add_argument_group("against a peer")
+    group.add_argument(
+        "--peer",
+        choices=["ros2"],
+        help="ros2: a ros2_aruco-style rclpy node over Fast DDS, reliable then best effort, "
+        "beside this service, OpenCV bare and the transport floor (HD720; needs the ros2 extra)",
+    )
+    group.add_argument(
+        "--ros-python",
+        metavar="PYTHON",
+        help="the Python with the ros2 extra (default: this one)",
     )
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(
