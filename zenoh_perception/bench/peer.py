@@ -58,7 +58,10 @@ RESOLUTION: Final = "HD720"
 def ros2_available(python: str) -> bool:
     """Whether ``python`` imports the ROS 2 packages the peer needs."""
     code = "import " + ", ".join(ROS2_MODULES)
-    done = subprocess.run([python, "-c", code], capture_output=True, check=False)
+    try:
+        done = subprocess.run([python, "-c", code], capture_output=True, check=False)
+    except OSError:  # no such interpreter
+        return False
     return done.returncode == 0
 
 
