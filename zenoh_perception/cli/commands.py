@@ -291,6 +291,10 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.overhead:
+        from zenoh_perception.bench import overhead  # noqa: PLC0415
+
+        return overhead.main(args)
     if args.peer is not None:
         from zenoh_perception.bench import peer  # noqa: PLC0415
 
@@ -378,6 +382,18 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--ros-python",
         metavar="PYTHON",
         help="the Python with the ros2 extra (default: this one)",
+    )
+    group.add_argument(
+        "--overhead",
+        action="store_true",
+        help="what the service adds to OpenCV in ms, per frame size, to tag and to record, "
+        "shared-memory and plain-bytes camera",
+    )
+    group.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="with --overhead: also HD1080 at HZ, frames answered per detector",
     )
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(
