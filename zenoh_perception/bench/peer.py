@@ -37,7 +37,14 @@ import zenoh
 
 import zenoh_perception
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import FLOOR, Camera, raw_frame, services, stop_service
+from zenoh_perception.bench.processes import (
+    FLOOR,
+    Camera,
+    ServiceError,
+    raw_frame,
+    services,
+    stop_service,
+)
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.runners import DICTIONARY, Baseline, rotation
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
@@ -90,13 +97,13 @@ class RosCamera:
         line = self.proc.stdout.readline()
         if not line:
             msg = f"the ROS 2 camera exited with {self.proc.wait()}"
-            raise RuntimeError(msg)
+            raise ServiceError(msg)
         return line.strip()
 
     def wait_ready(self) -> None:
         line = self._line()
         if line != "ready":
-            raise RuntimeError(f"the ROS 2 camera: {line}")
+            raise ServiceError(f"the ROS 2 camera: {line}")
 
     def send(self, qos: str, index: int) -> float | None:
         """Milliseconds from publish to answer (None: lost)."""
@@ -179,9 +186,9 @@ def run_peer(
         log = stack.enter_context((tmp / "ros2.log").open("w+", encoding="utf-8"))
         try:
             ros = stack.enter_context(ros2_peers(python, tmp / "frames.npy", dictionary, log))
-        except RuntimeError as err:
+        except ServiceError as err:
             log.seek(0)
-            raise RuntimeError(f"{err}; its output:\n{log.read()[-4000:]}") from err
+            raise ServiceError(f"{err}; its output:\n{log.read()[-4000:]}") from err
         session = stack.enter_context(zenoh.open(loopback_config(listen=[bench_endpoint])))
         remotes = stack.enter_context(services((FLOOR, SERVICE), bench_endpoint, session))
         for remote in remotes.values():
