@@ -251,6 +251,7 @@ class Remote:
         self.service = service
         self._session = session
         self.tags: queue.Queue[float] = queue.Queue()
+        self.record_arrivals: queue.Queue[float] = queue.Queue()  # perf_counter() per record
         self._raw_records: list[bytes] = []
         self._lock = threading.Lock()
         self._matched = threading.Event()
@@ -269,8 +270,10 @@ class Remote:
         self.tags.put(time.perf_counter())
 
     def _on_record(self, sample: zenoh.Sample) -> None:
+        arrived = time.perf_counter()
         with self._lock:
             self._raw_records.append(sample.payload.to_bytes())
+        self.record_arrivals.put(arrived)
 
     def _on_matching(self, status: zenoh.MatchingStatus) -> None:
         if status.matching:

@@ -383,6 +383,14 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.overhead:
+        from zenoh_perception.bench import overhead  # noqa: PLC0415
+
+        return overhead.main(args)
+    if args.peer is not None:
+        from zenoh_perception.bench import peer  # noqa: PLC0415
+
+        return peer.main(args)
     if args.dataset is not None or args.init is not None:
         from zenoh_perception.bench import dataset  # noqa: PLC0415
 
@@ -462,6 +470,30 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="end to end: the camera puts plain bytes (Zenoh copies them on put) instead of "
         "frames from a shared-memory buffer",
+    )
+    group = parser.add_argument_group("against a peer")
+    group.add_argument(
+        "--peer",
+        choices=["ros2"],
+        help="ros2: a ros2_aruco-style rclpy node over Fast DDS, reliable then best effort, "
+        "beside this service, OpenCV bare and the transport floor (HD720; needs the ros2 extra)",
+    )
+    group.add_argument(
+        "--ros-python",
+        metavar="PYTHON",
+        help="the Python with the ros2 extra (default: this one)",
+    )
+    group.add_argument(
+        "--overhead",
+        action="store_true",
+        help="what the service adds to OpenCV in ms, per frame size, to tag and to record, "
+        "shared-memory and plain-bytes camera",
+    )
+    group.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="with --overhead: also HD1080 at HZ, frames answered per detector",
     )
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(

@@ -1,0 +1,70 @@
+"""``bench --overhead``: the rows and the report from measured times, and the flags."""
+
+from __future__ import annotations
+
+import pytest
+
+from zenoh_perception.bench import overhead
+from zenoh_perception.cli import main as cli
+
+
+def _times(bare: float, floor: float, tag: float, record: float) -> dict[str, list[float]]:
+    times = {"opencv bare": [bare, bare + 2.0, bare - 2.0]}
+    for camera in overhead.CAMERAS:
+        times[f"floor/tag {camera}"] = [floor] * 3
+        times[f"opencv/tag {camera}"] = [tag] * 3
+        times[f"opencv/record {camera}"] = [record] * 3
+    return times
+
+
+def test_rows_give_the_excess_over_bare_in_ms_per_size_and_camera() -> None:
+    rows = overhead.overhead_rows({"HD720": _times(4.0, 1.0, 5.5, 5.75)})
+    assert [(r["resolution"], r["camera"]) for r in rows] == [("HD720", "shm"), ("HD720", "bytes")]
+    row = rows[0]
+    assert row["bare_ms"] == pytest.approx(4.0)  # the median, not the mean of the spread
+    assert row["tag_over_bare_ms"] == pytest.approx(1.5)
+    assert row["record_over_bare_ms"] == pytest.approx(1.75)
+    assert row["tag_ratio"] == pytest.approx(1.38)
+    assert row["own_ms"] == pytest.approx(0.5)  # tag - floor - bare
+
+
+def test_report_names_every_size_and_the_paced_run() -> None:
+    rows = overhead.overhead_rows({"VGA": _times(2, 0.5, 3, 3), "HD1080": _times(9, 1, 11, 11)})
+    rate = {
+        "opencv": {
+            "put": 120,
+            "answered": 90,
+            "answered_hz": 45.0,
+            "detect_median_ms": 20.0,
+            "frame_median_ms": 22.0,
+            "max_hz_from_frame_ms": 45.5,
+        }
+    }
+    text = overhead.report(rows, rate, 60.0)
+    assert "VGA" in text and "HD1080" in text
+    assert "answered 90/120" in text
+    assert "HD1080 at 60 Hz" in text
+
+
+def test_frames_have_the_named_size() -> None:
+    frames = overhead.frames_at("VGA", 2, seed=3)
+    assert [f.shape for f in frames] == [(480, 640, 4)] * 2
+
+
+def test_overhead_flags_parse() -> None:
+    args = cli.build_parser().parse_args(["bench", "--overhead", "--rate", "60"])
+    assert args.overhead and args.rate == 60.0
+    assert not cli.build_parser().parse_args(["bench"]).overhead
+
+
+@pytest.mark.timeout(300)
+def test_lockstep_sizes_times_every_path_through_real_services() -> None:
+    frames = {"VGA": overhead.frames_at("VGA", 2, seed=5)}
+    times = overhead.lockstep_sizes(frames, None)["VGA"]
+    for camera in overhead.CAMERAS:
+        for path in ("floor/tag", "opencv/tag", "opencv/record"):
+            assert len(times[f"{path} {camera}"]) == 2, path
+        # the record is put after the tag, by the same service, for the same frame
+        tags, records = times[f"opencv/tag {camera}"], times[f"opencv/record {camera}"]
+        assert all(r > 0 and t > 0 for t, r in zip(tags, records, strict=True))
+    assert len(times["opencv bare"]) == 2
