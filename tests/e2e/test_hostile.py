@@ -549,3 +549,18 @@ def test_replay_of_a_bit_flipped_bag_is_one_line_and_exit_2(tmp_path: Path, endp
     assert "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if "error" in line]
     assert len(errors) == 1 and "flipped.mcap" in errors[0]
+
+
+def test_replay_of_a_bag_with_deeply_nested_metadata_is_one_line_and_exit_2(
+    tmp_path: Path, endpoint: str
+) -> None:
+    folder = tmp_path / "deep"
+    folder.mkdir()
+    (folder / "metadata.yaml").write_text("rosbag2_bagfile_information: " + "[" * 50_000)
+    with open_session(listen=[endpoint]) as service:
+        Collector(service, FRAMES)
+        result = _replay(folder, endpoint)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and "nested 50000 levels deep" in errors[0]

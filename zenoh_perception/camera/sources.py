@@ -30,7 +30,8 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, ReaderError
 
 from zenoh_perception.camera.defaults import DEFAULT_FRAME_ID, DEFAULT_RATE_HZ, DEFAULT_TOPIC
-from zenoh_perception.errors import PerceptionError
+from zenoh_perception.errors import PerceptionError, SettingsError
+from zenoh_perception.files import check_nesting, read_text_file
 from zenoh_perception.settings import FRAME_LIMITS_HINT
 from zenoh_perception.wire.frames import MAX_DIMENSION, RawFrameMeta
 from zenoh_perception.wire.image_header import image_header_size
@@ -122,6 +123,13 @@ _BAG_ERRORS: Final = (
 
 
 def _open_reader(path: Path) -> Reader:
+    metadata = path / "metadata.yaml" if path.is_dir() else None
+    if metadata is not None and metadata.is_file():
+        # rosbags' YAML parser recurses per level: a deeply nested file is refused first
+        try:
+            check_nesting(read_text_file(metadata, "rosbag2 metadata"), f"rosbag2 {metadata}")
+        except SettingsError as err:
+            raise ReplayError(str(err)) from err
     try:
         reader = Reader(path)
         reader.open()
