@@ -138,3 +138,19 @@ def test_with_several_dictionaries_each_detection_is_read_on_its_own_grid() -> N
     assert sorted(d.dictionary for d in found) == ["DICT_4X4_50", "DICT_APRILTAG_36h11"]
     kept, reasons = Verifier(names).verify(gray, found)
     assert kept == found and reasons == []
+
+
+@pytest.mark.parametrize(
+    ("dictionary", "cells"), [("DICT_4X4_50", 6), ("DICT_6X6_250", 8), ("DICT_ARUCO_ORIGINAL", 7)]
+)
+def test_a_quad_too_thin_to_hold_a_pixel_per_cell_is_vetoed(dictionary: str, cells: int) -> None:
+    # the slivers OpenCV decodes on fur or a window frame: 13 x 1 px, under half a pixel a cell
+    gray = np.full((120, 160), 200, np.uint8)
+    gray[50:51, 40:53] = 20
+    sliver = np.array([[40, 50], [53, 50], [53, 51], [40, 51]], np.float32)
+    verifier = Verifier(dictionary)
+    assert verifier.check(gray, Detection(17, sliver, dictionary)) == "resolution"
+    # half a pixel a cell on its shortest side is enough for this rule (the others still apply)
+    side = cells / 2
+    wide = np.array([[40, 50], [53, 50], [53, 50 + side], [40, 50 + side]], np.float32)
+    assert verifier.check(gray, Detection(17, wide, dictionary)) != "resolution"

@@ -7,6 +7,11 @@ marker's quad is warped onto a grid of its own cells (border included) plus one 
 outside it (the quiet zone), each cell read on its central part. On the scale from the
 border's median level (0) to the white cells' (1):
 
+- ``resolution``: a quad whose shortest side holds less than :data:`MIN_PX_PER_CELL` pixel
+  per cell across it (the inner cells and the border, e.g. 6 for DICT_4X4) was decoded below
+  the image's own resolution (slivers one or two pixels wide on fur or window frames; a true
+  tag, however oblique, keeps more than one pixel a cell on the real corpus, and down to
+  0.875 on the generator's oblique 10 px tags). Checked before the cells are read;
 - ``quiet_zone``: a printed marker sits on a light margin as light as its white cells (the
   same paper). The ring's median must lie in [:data:`QUIET_MIN`, :data:`QUIET_MAX`]: below,
   the "marker" is a dark patch on something dark (a key-cap with a light glyph on a dark
@@ -43,7 +48,9 @@ Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
 
 #: The veto reasons, in the order they are checked.
-REASONS: Final = ("quiet_zone", "border", "grid")
+REASONS: Final = ("resolution", "quiet_zone", "border", "grid")
+#: Fewest pixels per cell along a quad's shortest side (cells: inner cells and border).
+MIN_PX_PER_CELL: Final = 0.5
 #: Pixels per cell of the warped grid; each cell is read on its central half (4 x 4 pixels).
 CELL_PX: Final = 8
 _CORE: Final = slice(2, 6)
@@ -73,6 +80,11 @@ class Reading:
 def mean_side(corners: npt.NDArray[np.float32]) -> float:
     """Mean side of a quad, pixels."""
     return float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).mean())
+
+
+def shortest_side(corners: npt.NDArray[np.float32]) -> float:
+    """Shortest side of a quad, pixels."""
+    return float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).min())
 
 
 @cache
@@ -200,6 +212,8 @@ class Verifier:
     def check(self, gray: Gray, detection: Detection) -> str | None:
         """Why ``detection`` is vetoed, or None when it is kept."""
         size = self._sizes.get(detection.dictionary, self._marker_size)
+        if shortest_side(detection.corners) < MIN_PX_PER_CELL * (size + 2):
+            return "resolution"
         return veto_reason(read_cells(gray, detection.corners, size))
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
