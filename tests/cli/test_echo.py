@@ -73,6 +73,16 @@ def test_echo_says_what_it_listens_to_before_anything_arrives() -> None:
     assert "listening on 'rover/tag' and 'perception/tags'" in err.getvalue()
 
 
+def test_echo_with_a_timeout_and_nothing_received_says_so_and_exits_1() -> None:
+    out, err = io.StringIO(), io.StringIO()
+    conf = loopback_config(listen=[loopback_endpoint()])
+    code = echo.main(conf, tag_key="rover/tag", timeout=0.2, out=out, err=err)
+    assert code == 1
+    assert "echo: nothing received on 'rover/tag' and 'perception/tags' within 0.2 s" in (
+        err.getvalue()
+    )
+
+
 class _Echo:
     """``echo.main`` on a thread, listening on ``endpoint``; always stopped on exit."""
 

@@ -144,7 +144,8 @@ def main(
     how many samples were skipped as undecodable, by key and reason. A skipped sample is a
     line too (one per key and reason every :data:`SKIP_LINE_INTERVAL_S`).
 
-    Returns 0, or 1 when ``count`` lines did not arrive before ``timeout``.
+    Returns 0, or 1 when ``count`` lines did not arrive before ``timeout``, or nothing at all
+    did (said on ``err``).
 
     ``ros`` says where the tag comes (default: the bridge's plain key).
 
@@ -195,7 +196,15 @@ def main(
         keys = [tag_key, record_key] if records else [tag_key]
         listening = " and ".join(repr(k) for k in keys)
         print(f"echo: listening on {listening} (Ctrl-C to stop)", file=err, flush=True)
-        code = _print_lines(lines, stop, out, count=count, timeout=timeout)
+        printed = _print_lines(lines, stop, out, timeout=timeout, count=count)
+    code = 1 if (count and printed < count) or (timeout is not None and printed == 0) else 0
+    if printed == 0 and timeout is not None and not stop.is_set():
+        print(
+            f"echo: nothing received on {listening} within {timeout:g} s: is the service "
+            "running on these keys, and do both sides meet (-e/-l, multicast scouting)?",
+            file=err,
+            flush=True,
+        )
     print(f"echo: {skipped.summary()}", file=err, flush=True)
     if records:
         with gaps_lock:
@@ -211,6 +220,8 @@ def _print_lines(
     count: int,
     timeout: float | None,
 ) -> int:
+    """Print queued lines until ``count`` counted ones, ``timeout`` or ``stop``; how many
+    counted lines were printed."""
     deadline = None if timeout is None else time.monotonic() + timeout
     printed = 0
     while not stop.is_set():
@@ -225,5 +236,5 @@ def _print_lines(
         if line.counted:
             printed += 1
         if count and printed >= count:
-            return 0
-    return 1 if count and printed < count else 0
+            break
+    return printed
