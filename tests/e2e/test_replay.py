@@ -33,6 +33,7 @@ from tests.helpers import (
     OutputLines,
     log_events,
     open_session,
+    parse_pairs,
     running_cli,
     wait_until,
 )
@@ -334,3 +335,19 @@ def test_cli_reports_source_errors(tmp_path: Path, args: list[str], match: str) 
         output, _ = proc.communicate(timeout=REPLAY_TIMEOUT_S)
     assert proc.returncode == 2
     assert match in output
+
+
+def test_cli_image_folder_says_which_files_it_leaves_out(tmp_path: Path, endpoint: str) -> None:
+    folder = tmp_path / "images"
+    write_images(folder)
+    (folder / "drive.mp4").write_bytes(b"not an image")
+    (folder / "notes.txt").write_text("labels")
+    with open_session(listen=[endpoint]) as camera_side:
+        frames = Collector(camera_side, "zed/left/image")
+        with running_cli(*_replay_args(folder, endpoint, "--as-fast-as-possible")) as proc:
+            lines = OutputLines(proc)
+            skipped = parse_pairs(lines.wait_for("event=replay_skipped_files"))
+            got = [frames.get(timeout=REPLAY_TIMEOUT_S) for _ in range(N_FRAMES)]
+            assert proc.wait(timeout=REPLAY_TIMEOUT_S) == 0
+    assert skipped["count"] == "2" and skipped["files"] == "drive.mp4,notes.txt"
+    assert len(got) == N_FRAMES  # the images are replayed all the same

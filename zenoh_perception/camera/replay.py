@@ -42,10 +42,12 @@ from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_KEY
 from zenoh_perception.camera.shm import ShmPutter
 from zenoh_perception.camera.sources import (
     FrameSource,
+    ImageSequenceSource,
     ReplayError,
     SourceFrame,
 )
 from zenoh_perception.errors import FrameDecodeError, PayloadTooLargeError, SettingsError
+from zenoh_perception.service.logs import kv
 from zenoh_perception.service.zenoh_args import (
     open_zenoh,
 )
@@ -405,6 +407,18 @@ def main(
                 f"{options.subscriber_timeout_s} s (is the service running and connected?)"
             )
             raise ReplayError(msg)
+        skipped = source.skipped if isinstance(source, ImageSequenceSource) else ()
+        if skipped:
+            # a folder of images replays its images only: say what it leaves out (a video
+            # in it is replayed by naming the video itself)
+            log.warning(
+                "event=replay_skipped_files %s",
+                kv(
+                    count=len(skipped),
+                    files=",".join(p.name for p in skipped[:10]),
+                    detail="not images: left out of the sequence (replay a video by its path)",
+                ),
+            )
         log.info(
             "event=replay_started source=%s frames=%s key=%s pacing=%s loop=%s limit=%d shm=%s "
             "compressed=%s",

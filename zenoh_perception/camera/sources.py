@@ -293,6 +293,16 @@ def list_images(folder: Path) -> list[Path]:
     return sorted(files, key=lambda p: p.name)
 
 
+def skipped_files(folder: Path) -> tuple[Path, ...]:
+    """The files directly in ``folder`` that :func:`list_images` leaves out, sorted by name."""
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return ()
+    others = [p for p in entries if p.suffix.lower() not in IMAGE_SUFFIXES and p.is_file()]
+    return tuple(sorted(others, key=lambda p: p.name))
+
+
 class ImageSequenceSource:
     """Still images sent one after the other as raw BGRA, ``rate_hz`` apart on the stamp clock."""
 
@@ -310,6 +320,8 @@ class ImageSequenceSource:
             msg = "no images to replay"
             raise ReplayError(msg)
         self.files = tuple(files)
+        #: Files of the folder that are no image (videos, notes), left out of the sequence.
+        self.skipped: tuple[Path, ...] = ()
         self.frame_id = frame_id
         self.rate_hz = rate_hz
         self.max_frame_bytes = max_frame_bytes
@@ -331,7 +343,9 @@ class ImageSequenceSource:
                 f"({', '.join(sorted(IMAGE_SUFFIXES))})"
             )
             raise ReplayError(msg)
-        return cls(files, rate_hz=rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes)
+        source = cls(files, rate_hz=rate_hz, frame_id=frame_id, max_frame_bytes=max_frame_bytes)
+        source.skipped = skipped_files(folder)
+        return source
 
     @property
     def count(self) -> int | None:
