@@ -12,11 +12,12 @@ import pytest
 
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import REASONS, Verifier, mean_side
+from zenoh_perception.detect.verify import REASONS, Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
 from zenoh_perception.settings import Settings
+from zenoh_perception.tags.geometry import mean_side
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 
 #: Frames of each kind drawn per test: enough that OpenCV reads ids on them.

@@ -9,7 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from zenoh_perception.errors import JsonPayloadError
-from zenoh_perception.wire.bounded_json import loads_bounded, nesting_depth
+from zenoh_perception.files import nesting_depth
+from zenoh_perception.wire.bounded_json import loads_bounded
 
 _JSON = st.recursive(
     st.none()

@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import Detection, dictionary_names
+from zenoh_perception.tags.geometry import mean_side
 
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
@@ -75,11 +76,6 @@ class Reading:
     contrast: float  # white cells' level minus the border's, grey levels
     border_light: float  # share of border cells nearer the white level than the border's
     grid_ratio: float  # cells' spread on its own grid over the least on a finer grid
-
-
-def mean_side(corners: npt.NDArray[np.float32]) -> float:
-    """Mean side of a quad, pixels."""
-    return float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).mean())
 
 
 def shortest_side(corners: npt.NDArray[np.float32]) -> float:

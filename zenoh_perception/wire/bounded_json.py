@@ -8,35 +8,19 @@ The size is checked before anything is decoded and the nesting before ``json`` p
 from __future__ import annotations
 
 import json
-import re
 from typing import Any, Final
 
 from zenoh_perception.errors import JsonPayloadError
+from zenoh_perception.files import nesting_depth
 
 #: Largest JSON payload accepted by default (a service's status is a few KiB).
 MAX_JSON_BYTES: Final = 1 << 20
 #: Deepest nesting of arrays and objects accepted by default (a status nests 3 levels).
 MAX_JSON_DEPTH: Final = 32
 
-# Strings are skipped whole (a bracket inside one is text); brackets open and close levels.
-_TOKENS: Final = re.compile(r'"(?:[^"\\]|\\.)*"|[\[{]|[\]}]', re.DOTALL)
-
 
 def _refuse_constant(name: str) -> Any:
     raise JsonPayloadError("non_finite", f"{name} is not JSON")
-
-
-def nesting_depth(text: str) -> int:
-    """The deepest nesting of arrays and objects in ``text`` (0 for a scalar)."""
-    depth = deepest = 0
-    for match in _TOKENS.finditer(text):
-        first = match.group()[0]
-        if first in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif first in "]}":
-            depth -= 1
-    return deepest
 
 
 def loads_bounded(
