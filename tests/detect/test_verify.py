@@ -12,7 +12,7 @@ import pytest
 
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import REASONS, Verifier
+from zenoh_perception.detect.verify import REASONS, Verifier, decision_margin, dictionary_codes
 from zenoh_perception.pipeline import Pipeline, TagFinder
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
@@ -155,3 +155,79 @@ def test_a_quad_too_thin_to_hold_a_pixel_per_cell_is_vetoed(dictionary: str, cel
     side = cells / 2
     wide = np.array([[40, 50], [53, 50], [53, 50 + side], [40, 50 + side]], np.float32)
     assert verifier.check(gray, Detection(17, wide, dictionary)) != "resolution"
+
+
+def _square(x0: float, y0: float, side: float) -> np.ndarray:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def test_the_margin_of_a_clean_read_is_the_distance_to_the_nearest_other_code() -> None:
+    codes = dictionary_codes("DICT_4X4_50")
+    own = codes[4 * 7]
+    nearest = min(int((own != codes[row]).sum()) for row in range(len(codes)) if row // 4 != 7)
+    assert decision_margin(own.copy(), 7, codes) == pytest.approx(nearest)
+    assert nearest >= 4  # DICT_4X4_50's ids are at least 4 bits apart
+
+
+def test_an_id_that_two_grey_cells_make_a_coin_toss_is_vetoed() -> None:
+    # two DICT_4X4_1000 ids two bits apart; the cells where they differ painted grey, a shade
+    # to the first id's side: OpenCV reads the first, which explains the cells hardly better
+    codes = dictionary_codes("DICT_4X4_1000")
+    first = 3
+    other = next(
+        row // 4
+        for row in range(0, len(codes), 4)
+        if row // 4 != first and int((codes[4 * first] != codes[row]).sum()) == 2
+    )
+    side, x0, y0 = 120.0, 60.0, 50.0
+    gray = render_markers(240, 220, [(first, _square(x0, y0, side))], dictionary="DICT_4X4_1000")
+    gray = np.asarray(gray[:, :, 1], np.uint8).copy()
+    cell = side / 6
+    for index in np.flatnonzero(codes[4 * first] != codes[4 * other]):
+        row, col = divmod(int(index), 4)
+        top, left = int(y0 + (row + 1) * cell), int(x0 + (col + 1) * cell)
+        shade = 150 if codes[4 * first][index] else 105
+        gray[top : top + int(cell), left : left + int(cell)] = shade
+    found = OpenCvDetector("DICT_4X4_1000").detect(gray)
+    assert [d.tag_id for d in found] == [first]
+    assert Verifier("DICT_4X4_1000").verify(gray, found) == ([], ["margin"])
+    # the same marker drawn clean is kept
+    clean = render_markers(240, 220, [(first, _square(x0, y0, side))], dictionary="DICT_4X4_1000")
+    clean_gray = np.asarray(clean[:, :, 1], np.uint8).copy()
+    (kept,) = OpenCvDetector("DICT_4X4_1000").detect(clean_gray)
+    assert Verifier("DICT_4X4_1000").check(clean_gray, kept) is None
+
+
+def test_a_marker_kept_on_the_frame_before_is_not_read_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    gray = np.asarray(render_markers(320, 240, [(7, _square(100, 60, 90))])[:, :, 1], np.uint8)
+    (found,) = OpenCvDetector("DICT_4X4_50").detect(gray)
+    verifier = Verifier("DICT_4X4_50")
+    reads: list[int] = []
+    check = verifier.check
+
+    def counted(image: np.ndarray, detection: Detection) -> str | None:
+        reads.append(detection.tag_id)
+        return check(image, detection)
+
+    monkeypatch.setattr(verifier, "check", counted)
+    assert verifier.verify(gray, [found]) == ([found], [])
+    moved = Detection(7, found.corners + np.float32(3.0), found.dictionary)
+    assert verifier.verify(gray, [moved]) == ([moved], [])
+    assert reads == [7]  # the second frame's marker was the first's, a few pixels on
+    far = Detection(7, found.corners + np.float32(60.0), found.dictionary)
+    verifier.verify(gray, [far])
+    assert reads == [7, 7]  # far from where it was: read again
+    other = Detection(8, far.corners, found.dictionary)
+    verifier.verify(gray, [other])
+    assert reads == [7, 7, 8]  # another id at the same place: read again
+
+
+def test_a_vetoed_detection_is_read_again_on_the_next_frame() -> None:
+    rng = np.random.default_rng(7)
+    grey = _grey(lookalike_frame("keys", "DICT_4X4_50", rng))
+    found = OpenCvDetector("DICT_4X4_50").detect(grey)
+    verifier = Verifier("DICT_4X4_50")
+    assert found and verifier.verify(grey, found)[0] == []
+    assert verifier.verify(grey, found)[0] == []  # a veto is never remembered as a keep

@@ -3,9 +3,9 @@ logging.
 
 OpenCV's ``ArucoDetector`` proposes every marker and its id; :class:`Verifier` re-reads each
 one from the grey image and may reject it, never add one nor change its id or corners. The
-marker's quad is warped onto a grid of its own cells (border included) plus one ring of cells
-outside it (the quiet zone), each cell read on its central part. On the scale from the
-border's median level (0) to the white cells' (1):
+marker's quad is warped once onto a grid of its own cells (border included) plus one ring of
+cells outside it (the quiet zone); every grid below is read from that one patch, each cell on
+its central half. On the scale from the border's median level (0) to the white cells' (1):
 
 - ``resolution``: a quad whose shortest side holds less than :data:`MIN_PX_PER_CELL` pixel
   per cell across it (the inner cells and the border, e.g. 6 for DICT_4X4) was decoded below
@@ -25,7 +25,15 @@ border's median level (0) to the white cells' (1):
   cells' spread (mean standard deviation inside each cell) on its own grid is more than
   :data:`GRID_RATIO_MAX` times the least on a finer grid, the quad is a finer family's marker
   whose cells happen to read as a code of the coarser one (tag36h11 read as DICT_4X4 or
-  tag16h5, 6X6 read as DICT_4X4 or 5X5: the confusions the real corpus shows).
+  tag16h5, 6X6 read as DICT_4X4 or 5X5: the confusions the real corpus shows);
+- ``margin``: the inner cells' levels (clipped to [0, 1]) scored against every code of the
+  dictionary, in every rotation, as the sum over the cells of the distance to the code's bit:
+  a marker's own code scores far better than any other id's, while a glyph whose strokes
+  cross the cells scores about as well on another id. The best other id's score minus the
+  own code's is the decision's margin, in bits; under :data:`MARGIN_MIN_BITS` the id is a
+  coin toss between two codes (OpenCV decides each bit alone and never sees how close it was).
+  Not applied to a dictionary with ids one bit apart (ARUCO_ORIGINAL), where a blurred true
+  tag has no margin either.
 
 docs/benchmarks.md gives the distributions of these features on the true and false
 detections of the project's real corpus that set the thresholds, and what each rule removes.
@@ -33,6 +41,7 @@ detections of the project's real corpus that set the thresholds, and what each r
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cache
 from typing import Final
@@ -47,15 +56,12 @@ from zenoh_perception.tags.geometry import mean_side
 
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
+Floats = npt.NDArray[np.float64]
 
 #: The veto reasons, in the order they are checked.
-REASONS: Final = ("resolution", "quiet_zone", "border", "grid")
+REASONS: Final = ("resolution", "quiet_zone", "border", "grid", "margin")
 #: Fewest pixels per cell along a quad's shortest side (cells: inner cells and border).
 MIN_PX_PER_CELL: Final = 0.5
-#: Pixels per cell of the warped grid; each cell is read on its central half (4 x 4 pixels).
-CELL_PX: Final = 8
-_CORE: Final = slice(2, 6)
-_CORE_PX: Final = 4
 #: The quiet zone's median level must lie in [QUIET_MIN, QUIET_MAX] (border 0, white cells 1).
 QUIET_MIN: Final = 0.35
 QUIET_MAX: Final = 1.8
@@ -65,6 +71,14 @@ BORDER_LIGHT_MAX: Final = 0.35
 GRID_RATIO_MAX: Final = 2.5
 #: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
 GRID_SIZES: Final = (4, 5, 6, 7)
+#: Least decision margin, bits: how much better the own code explains the cells than any other.
+MARGIN_MIN_BITS: Final = 0.5
+#: A marker kept on the frame before is seen again when its centre moved at most this share
+#: of its side and its side changed at most by this share.
+SAME_PLACE: Final = 0.25
+SAME_SIZE: Final = 0.2
+#: Pixels a cell of the finest grid gets in the warped patch (its central half: 4 x 4).
+FINEST_CELL_PX: Final = 8
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,47 +90,97 @@ class Reading:
     contrast: float  # white cells' level minus the border's, grey levels
     border_light: float  # share of border cells nearer the white level than the border's
     grid_ratio: float  # cells' spread on its own grid over the least on a finer grid
+    levels: npt.NDArray[np.float32]  # the inner cells' levels clipped to [0, 1], row by row
 
 
 def shortest_side(corners: npt.NDArray[np.float32]) -> float:
     """Shortest side of a quad, pixels."""
-    return float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).min())
+    edges = corners[[1, 2, 3, 0]] - corners
+    return float(np.sqrt((edges * edges).sum(axis=1).min()))
+
+
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """The warped patch of a marker with ``marker_size`` inner cells a side, and where every
+    grid's cell cores lie in the patch's integral image (flattened)."""
+
+    cell_px: int  # pixels a cell of the marker's own grid
+    side_px: int  # the patch's side: the marker, its border and one ring of cells
+    target: npt.NDArray[np.float32]  # the marker's corners in the patch
+    ring: Mask
+    border: Mask
+    inner: Mask
+    own_cores: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]  # own grid, one axis
+    corners: npt.NDArray[np.intp]  # (4, cores): the cores' corners, own grid then finer ones
+    area: Floats  # pixels of each core
+    finer: npt.NDArray[np.intp]  # where each finer grid's cores start in ``corners``
+
+
+def _cores(start: int, stop: int, cells: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """First and last-plus-one pixel of the central half of each of ``cells`` cells that
+    divide [start, stop)."""
+    width = (stop - start) / cells
+    index = np.arange(cells)
+    low = np.rint(start + (index + 0.25) * width).astype(np.intp)
+    high = np.maximum(np.rint(start + (index + 0.75) * width).astype(np.intp), low + 1)
+    return low, high
 
 
 @cache
-def _layout(marker_size: int) -> tuple[Mask, Mask, Mask, npt.NDArray[np.float32]]:
-    """For ``marker_size`` inner cells a side: the masks of the quiet ring, the border and the
-    inner cells of the warped grid, and the warped grid's quad corners."""
+def _layout(marker_size: int) -> _Layout:
+    # the marker spans at least FINEST_CELL_PX a cell of the finest grid (9 cells for 7X7)
+    finest = GRID_SIZES[-1] + 2
+    cell = max(FINEST_CELL_PX, math.ceil(FINEST_CELL_PX * finest / (marker_size + 2)))
     cells = marker_size + 4
+    side = cells * cell
     ring = np.zeros((cells, cells), bool)
     ring[0, :] = ring[-1, :] = ring[:, 0] = ring[:, -1] = True
     inner = np.zeros((cells, cells), bool)
     inner[2:-2, 2:-2] = True
-    border = ~ring & ~inner
-    lo, hi = CELL_PX, (cells - 1) * CELL_PX
+    lo, hi = cell, (cells - 1) * cell
     target = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], np.float32)
-    return ring, border, inner, target
+    grids = [_cores(0, side, cells)]
+    grids += [_cores(lo, hi, size + 2) for size in GRID_SIZES if size > marker_size]
+    stride = side + 1  # the integral image's row length
+    corners: list[npt.NDArray[np.intp]] = [np.empty(0, np.intp)] * 4
+    areas: list[Floats] = []
+    for low, high in grids:
+        for k, (rows, cols) in enumerate(((high, high), (low, high), (high, low), (low, low))):
+            corners[k] = np.concatenate([corners[k], (rows[:, None] * stride + cols).ravel()])
+        areas.append(np.outer(high - low, high - low).ravel().astype(np.float64))
+    starts = np.cumsum([0] + [low.size**2 for low, _ in grids])[1:-1]
+    return _Layout(
+        cell,
+        side,
+        target,
+        ring,
+        ~ring & ~inner,
+        inner,
+        grids[0],
+        np.stack(corners),
+        np.concatenate(areas),
+        np.asarray(starts, np.intp),
+    )
 
 
-def _warp(
-    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], npt.NDArray[np.float64]]:
-    """Each cell's mean and standard deviation over its central part (two (cells, cells)
-    arrays), and the homography used."""
-    cells = marker_size + 4
-    target = _layout(marker_size)[3]
-    warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), target)
-    patch = cv2.warpPerspective(gray, warp, (cells * CELL_PX, cells * CELL_PX))
-    core = patch.reshape(cells, CELL_PX, cells, CELL_PX)[:, _CORE, :, _CORE]
-    values = core.reshape(cells * _CORE_PX, cells * _CORE_PX).astype(np.float32)
-    # a 4 x 4 block's mean is one pixel of the area-resized image
-    mean = cv2.resize(values, (cells, cells), interpolation=cv2.INTER_AREA)
-    square = cv2.resize(values * values, (cells, cells), interpolation=cv2.INTER_AREA)
-    spread = np.sqrt(np.maximum(square - mean * mean, 0.0))
-    return np.asarray(mean, np.float32), np.asarray(spread, np.float32), np.asarray(warp)
+def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
+    """Mean and standard deviation of every cell core of every grid, in ``layout.corners``'
+    order, from the patch's integral images."""
+    sums, squares = cv2.integral2(patch, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
+
+    def box(table: Floats) -> Floats:
+        flat = table.ravel()
+        hh, lh, hl, ll = (flat[index] for index in layout.corners)
+        return np.asarray(hh - lh - hl + ll)
+
+    mean = box(np.asarray(sums, np.float64)) / layout.area
+    spread = np.sqrt(
+        np.maximum(box(np.asarray(squares, np.float64)) / layout.area - mean * mean, 0.0)
+    )
+    return mean, spread
 
 
-def _median(values: npt.NDArray[np.float32]) -> float:
+def _median(values: Floats) -> float:
     ordered = np.sort(values, axis=None)
     middle = ordered.size // 2
     return float(
@@ -124,68 +188,114 @@ def _median(values: npt.NDArray[np.float32]) -> float:
     )
 
 
-def _inside(gray: Gray, warp: npt.NDArray[np.float64], marker_size: int) -> Mask:
-    """Which cells of the warped grid have their central part inside the image."""
-    cells = marker_size + 4
+def _inside(gray: Gray, back: Floats, layout: _Layout) -> Mask:
+    """Which cells of the own grid have their central part inside the image (``back``: the
+    homography from the patch to the image)."""
     height, width = gray.shape[:2]
+    edge = float(layout.side_px - 1)
     outline = cv2.perspectiveTransform(
-        np.array(
-            [
-                [[0, 0]],
-                [[cells * CELL_PX - 1, 0]],
-                [[cells * CELL_PX - 1] * 2],
-                [[0, cells * CELL_PX - 1]],
-            ],
-            np.float32,
-        ),
-        np.linalg.inv(warp),
+        np.array([[[0, 0]], [[edge, 0]], [[edge, edge]], [[0, edge]]], np.float32), back
     )
     if (
         (outline >= 0).all()
         and (outline[..., 0] <= width - 1).all()
         and (outline[..., 1] <= height - 1).all()
     ):
-        return np.ones((cells, cells), bool)  # the whole grid is inside the image
-    ends = np.arange(cells, dtype=np.float32)[:, None] * CELL_PX + np.array([2, 5], np.float32)
+        return np.ones(layout.ring.shape, bool)  # the whole grid is inside the image
+    low, high = layout.own_cores
+    ends = np.stack([low, high - 1], axis=1).astype(np.float32)  # (cells, 2)
     xs, ys = np.meshgrid(ends.reshape(-1), ends.reshape(-1))
     points = np.stack([xs, ys], axis=-1).reshape(-1, 1, 2)
-    back = cv2.perspectiveTransform(points, np.linalg.inv(warp)).reshape(cells, 2, cells, 2, 2)
-    ok = (back >= 0).all(axis=-1) & (back[..., 0] <= width - 1) & (back[..., 1] <= height - 1)
+    cells = low.size
+    mapped = cv2.perspectiveTransform(points, back).reshape(cells, 2, cells, 2, 2)
+    ok = (mapped >= 0).all(axis=-1) & (mapped[..., 0] <= width - 1) & (mapped[..., 1] <= height - 1)
     return np.asarray(ok.all(axis=(1, 3)), bool)
 
 
 def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
     side, as a :class:`Reading`."""
-    ring, border, inner, _ = _layout(marker_size)
-    grid, spread, warp = _warp(gray, corners, marker_size)
-    dark = _median(grid[border])
-    code = grid[inner]
+    layout = _layout(marker_size)
+    warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), layout.target)
+    patch = np.asarray(cv2.warpPerspective(gray, warp, (layout.side_px, layout.side_px)), np.uint8)
+    means, spreads = _cell_stats(patch, layout)
+    cells = layout.ring.shape[0]
+    grid = means[: cells * cells].reshape(cells, cells)
+    spread = spreads[: cells * cells].reshape(cells, cells)
+    dark = _median(grid[layout.border])
+    code = grid[layout.inner]
     # white cells: the inner cells above the midpoint between the border and the lightest cell
     split = (dark + float(code.max())) / 2.0
     light = _median(code[code > split]) if (code > split).any() else dark
     contrast = light - dark
     scale = max(contrast, 1.0)
     levels = (grid - dark) / scale
-    quiet_cells = levels[ring & _inside(gray, warp, marker_size)]
+    back = cv2.getPerspectiveTransform(layout.target, np.asarray(corners, np.float32))
+    quiet_cells = levels[layout.ring & _inside(gray, np.asarray(back), layout)]
     quiet = _median(quiet_cells) if quiet_cells.size else 1.0
-    border_light = float(np.mean(levels[border] > 0.5))
-    own = float(spread[~ring].mean())
-    least = (
-        min(
-            float(_warp(gray, corners, size)[1][~_layout(size)[0]].mean())
-            for size in GRID_SIZES
-            if size > marker_size
-        )
-        if marker_size < GRID_SIZES[-1]
-        else own
-    )
+    border_light = float(np.mean(levels[layout.border] > 0.5))
+    own = float(spread[~layout.ring].mean())
+    finer = spreads[cells * cells :]
+    if finer.size:
+        bounds = layout.finer - cells * cells
+        counts = np.diff(np.append(bounds, finer.size))
+        least = float((np.add.reduceat(finer, bounds) / counts).min())
+    else:
+        least = own
     grid_ratio = own / max(least, 1e-3)
-    return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio)
+    inner = np.clip(levels[layout.inner], 0.0, 1.0).astype(np.float32)
+    return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio, inner)
+
+
+Bits = npt.NDArray[np.float32]
+
+
+@cache
+def dictionary_codes(name: str) -> Bits:
+    """The codes of the predefined dictionary ``name`` as 0/1 rows of its inner cells, row by
+    row, every id in its 4 rotations: rows 4 id .. 4 id + 3, the first as OpenCV's corner
+    order reads it."""
+    dictionary = aruco_dictionary(name)
+    size = int(dictionary.markerSize)
+    table = dictionary.bytesList
+    rows = [
+        np.rot90(dictionary.getBitsFromByteList(table[i : i + 1], size).reshape(size, size), -k)
+        for i in range(len(table))
+        for k in range(4)
+    ]
+    return np.asarray(rows, np.float32).reshape(len(table) * 4, size * size)
+
+
+@cache
+def min_distance(name: str) -> int:
+    """The fewest bits in which an id of dictionary ``name`` differs from another id in any
+    rotation."""
+    codes = dictionary_codes(name)
+    count, cells = len(codes) // 4, codes.shape[1]
+    first = codes[0::4]
+    same = first @ codes.T + (1.0 - first) @ (1.0 - codes).T  # agreeing bits, every pair
+    distance = cells - np.rint(same).astype(int)
+    ids = np.arange(count)
+    distance.reshape(count, count, 4)[ids, ids, :] = cells + 1
+    return int(distance.min())
+
+
+def decision_margin(levels: Bits, tag_id: int, codes: Bits) -> float:
+    """The best other id's score minus ``tag_id``'s, in bits (score: the sum over the cells of
+    the distance between the cell's level and the code's bit; ``codes``: see
+    :func:`dictionary_codes`)."""
+    # sum |l - b| over the cells = sum l + b . (1 - 2 l) for bits b in {0, 1}
+    scores = codes @ (1.0 - 2.0 * levels) + float(levels.sum())
+    own = float(scores[4 * tag_id])
+    if scores.size == 4:
+        return math.inf  # a dictionary of one id
+    scores[4 * tag_id : 4 * tag_id + 4] = np.inf
+    return float(scores.min()) - own
 
 
 def veto_reason(reading: Reading) -> str | None:
-    """The first of :data:`REASONS` that rejects ``reading``, or None to keep it."""
+    """The first of :data:`REASONS` from the cells' levels that rejects ``reading``, or None
+    (the code's margin is checked apart, by :meth:`Verifier.check`)."""
     if not QUIET_MIN <= reading.quiet <= QUIET_MAX:
         return "quiet_zone"
     if reading.border_light > BORDER_LIGHT_MAX:
@@ -198,28 +308,65 @@ def veto_reason(reading: Reading) -> str | None:
 class Verifier:
     """Vetoes detections of ``dictionary``'s markers (one dictionary, or several separated by
     commas) that the checks above reject; a detection is read on the grid of the dictionary
-    it names."""
+    it names.
+
+    :meth:`verify` is meant for the frames of one stream in order: a detection with the id,
+    the dictionary, about the place (centre within :data:`SAME_PLACE` of a side) and the size
+    (within :data:`SAME_SIZE`) of one kept on the frame before is the same marker seen
+    again, and is kept without being read again.
+    """
 
     def __init__(self, dictionary: str) -> None:
         names = dictionary_names(dictionary)
         self._sizes = {name: int(aruco_dictionary(name).markerSize) for name in names}
-        self._marker_size = self._sizes[names[0]]
+        # ids one bit apart (ARUCO_ORIGINAL) leave a true tag no margin once it is blurred
+        self._codes = {name: dictionary_codes(name) for name in names if min_distance(name) > 1}
+        self._first = names[0]
+        self._shape: tuple[int, ...] = ()
+        self._kept: list[tuple[int, str, npt.NDArray[np.float32], float]] = []
 
     def check(self, gray: Gray, detection: Detection) -> str | None:
         """Why ``detection`` is vetoed, or None when it is kept."""
-        size = self._sizes.get(detection.dictionary, self._marker_size)
+        name = detection.dictionary if detection.dictionary in self._sizes else self._first
+        size = self._sizes[name]
         if shortest_side(detection.corners) < MIN_PX_PER_CELL * (size + 2):
             return "resolution"
-        return veto_reason(read_cells(gray, detection.corners, size))
+        reading = read_cells(gray, detection.corners, size)
+        reason = veto_reason(reading)
+        if reason is not None:
+            return reason
+        codes = self._codes.get(name)
+        if codes is None or not 0 <= detection.tag_id < len(codes) // 4:
+            return None  # no margin rule for this dictionary, or not one of its ids
+        margin = decision_margin(reading.levels, detection.tag_id, codes)
+        return "margin" if margin < MARGIN_MIN_BITS else None
+
+    def _seen(self, detection: Detection, centre: npt.NDArray[np.float32], side: float) -> bool:
+        for tag_id, dictionary, where, size in self._kept:
+            if (
+                tag_id == detection.tag_id
+                and dictionary == detection.dictionary
+                and abs(side - size) <= SAME_SIZE * size
+                and float(np.abs(centre - where).max()) <= SAME_PLACE * size
+            ):
+                return True
+        return False
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
         """The detections kept (the same objects, in order) and the reason of each veto."""
+        if gray.shape != self._shape:
+            self._shape, self._kept = gray.shape, []
         kept: list[Detection] = []
         reasons: list[str] = []
+        following: list[tuple[int, str, npt.NDArray[np.float32], float]] = []
         for detection in detections:
-            reason = self.check(gray, detection)
+            centre = detection.corners.mean(axis=0)
+            side = mean_side(detection.corners)
+            reason = None if self._seen(detection, centre, side) else self.check(gray, detection)
             if reason is None:
                 kept.append(detection)
+                following.append((detection.tag_id, detection.dictionary, centre, side))
             else:
                 reasons.append(reason)
+        self._kept = following
         return kept, reasons
