@@ -153,7 +153,7 @@ class Settings:
     )
     verify: bool = field(
         default=True,
-        metadata=_doc("re-read each small tag and veto look-alikes (never adds or changes one)"),
+        metadata=_doc("re-read each tag OpenCV reports, veto look-alikes (never adds or changes one)"),
     )
     # Limits and budget
     max_frame_bytes: int = field(
