@@ -1,4 +1,4 @@
-"""The bench's side of its service processes: raw frames, the camera, SIGTERM."""
+"""The bench's side of its service processes: raw frames, the camera, SIGTERM, flags."""
 
 from __future__ import annotations
 
@@ -7,8 +7,17 @@ import signal
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 
-from zenoh_perception.bench.processes import Camera, raw_frame, raw_frames, sigterm_exits
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception.bench.processes import (
+    FLOOR,
+    Camera,
+    raw_frame,
+    raw_frames,
+    services,
+    sigterm_exits,
+)
 from zenoh_perception.scene import CameraModel, SceneGenerator
 
 
@@ -43,3 +52,20 @@ def test_sigterm_exits_through_the_finally_blocks_and_restores_the_handler() -> 
     assert exited.value.code == 128 + signal.SIGTERM
     assert cleaned == [True]
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+@pytest.mark.timeout(120)
+def test_services_run_with_the_flags_given_and_the_floor_without() -> None:
+    endpoint = loopback_endpoint()
+    with (
+        zenoh.open(loopback_config(listen=[endpoint])) as session,
+        services(("opencv", FLOOR), endpoint, session, flags=("--no-verify",)) as remotes,
+    ):
+        assert remotes["opencv"].status()["settings"]["verify"] is False
+        floor_command = remotes[FLOOR].service.proc.args
+        assert isinstance(floor_command, list) and "--no-verify" not in floor_command
+    with (
+        zenoh.open(loopback_config(listen=[endpoint])) as session,
+        services(("opencv",), endpoint, session) as remotes,
+    ):
+        assert remotes["opencv"].status()["settings"]["verify"] is True

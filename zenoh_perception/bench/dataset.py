@@ -414,6 +414,7 @@ def evaluate(
     e2e: bool = False,
     shm: bool = True,
     progress: Progress | None = None,
+    flags: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Run both detectors over every item; the JSON-ready report (see the module doc).
 
@@ -436,6 +437,7 @@ def evaluate(
                 e2e=e2e,
                 shm=shm,
                 progress=progress,
+                flags=flags,
             )
         except TooLargeError as err:
             refused.append({"name": item.name, "reason": str(err)})
@@ -456,6 +458,7 @@ def _evaluate_item(
     e2e: bool,
     shm: bool,
     progress: Progress | None,
+    flags: Sequence[str],
 ) -> list[dict[str, Any]]:
     """The item's rows: one per dictionary it is read in."""
     rows: list[dict[str, Any]] = []
@@ -494,7 +497,7 @@ def _evaluate_item(
             unread = scores[dictionary]["service"].unverified == 0
             row["hint"] = nothing_found_hint(item, first) if unread else None
         if kept is not None:
-            row["e2e"] = _end_to_end(item, kept, shm, progress)
+            row["e2e"] = _end_to_end(item, kept, shm, progress, flags)
         rows.append(row)
     return rows
 
@@ -536,7 +539,11 @@ def nothing_found_hint(item: Item, image: Image) -> str:
 
 
 def _end_to_end(
-    item: Item, images: Sequence[Image], shm: bool, progress: Progress | None
+    item: Item,
+    images: Sequence[Image],
+    shm: bool,
+    progress: Progress | None,
+    flags: Sequence[str],
 ) -> dict[str, Any]:
     run = lockstep_images(
         (*E2E_DETECTORS, FLOOR),
@@ -545,6 +552,7 @@ def _end_to_end(
         f"e2e {item.name}",
         dictionary=item.dictionary,
         shm=shm,
+        flags=flags,
     )
     out: dict[str, Any] = {"camera": run.camera}
     bare = np.asarray(run.bare_ms, dtype=np.float64)
@@ -640,6 +648,8 @@ def main(args: argparse.Namespace, settings: Settings) -> int:
                 e2e=args.e2e,
                 shm=not args.no_shm,
                 progress=progress,
+                # the service processes of --e2e read the same settings file
+                flags=("-s", str(args.settings)) if args.settings is not None else (),
             )
         finally:
             progress.close()

@@ -81,12 +81,14 @@ def lockstep_images(
     dictionary: str = DICTIONARY,
     shm: bool = True,
     camera: Camera | None = None,
+    flags: Sequence[str] = (),
 ) -> LockstepRun:
     """End-to-end latency (frame put -> ``tag`` received) of one service process per name
     (a detector, or the floor), one BGRA image at a time (one stream, in order), and the
     baseline's bare detection time on the same image (see the module doc). With ``shm`` the
     frame is written into a shared-memory buffer before the clock starts (``camera``: one to
-    share between runs, whose summary then covers them all).
+    share between runs, whose summary then covers them all). ``flags``: more flags of the
+    services' ``run``.
     """
     latencies: dict[str, list[float]] = {name: [] for name in names}
     bare: list[float] = []
@@ -96,7 +98,7 @@ def lockstep_images(
     height, width = images[0].shape[:2]
     with (
         zenoh.open(loopback_config(listen=[bench_endpoint])) as session,
-        services(names, bench_endpoint, session, dictionary) as remotes,
+        services(names, bench_endpoint, session, dictionary, flags) as remotes,
     ):
         for remote in remotes.values():
             remote.warm_up(width, height, camera)

@@ -72,17 +72,18 @@ def _drain(remote: Remote) -> None:
 
 
 def lockstep_sizes(
-    frames: dict[str, list[Image]], progress: Progress | None
+    frames: dict[str, list[Image]], progress: Progress | None, flags: Sequence[str] = ()
 ) -> dict[str, dict[str, list[float]]]:
     """resolution -> path -> milliseconds per frame (paths: ``opencv bare``, and per camera
-    ``floor/tag``, ``opencv/tag``, ``opencv/record``)."""
+    ``floor/tag``, ``opencv/tag``, ``opencv/record``). ``flags``: more flags of the service's
+    ``run``."""
     cameras = {name: Camera(name == "shm") for name in CAMERAS}
     baseline = Baseline(DICTIONARY)
     endpoint = loopback_endpoint()
     out: dict[str, dict[str, list[float]]] = {}
     with (
         zenoh.open(loopback_config(listen=[endpoint])) as session,
-        services((FLOOR, SERVICE), endpoint, session) as remotes,
+        services((FLOOR, SERVICE), endpoint, session, flags=flags) as remotes,
     ):
         for resolution, images in frames.items():
             height, width = images[0].shape[:2]
@@ -142,7 +143,11 @@ def overhead_rows(by_size: dict[str, dict[str, list[float]]]) -> list[dict[str, 
 
 
 def paced(
-    detectors: Sequence[str], images: Sequence[Image], hz: float, seconds: float
+    detectors: Sequence[str],
+    images: Sequence[Image],
+    hz: float,
+    seconds: float,
+    flags: Sequence[str] = (),
 ) -> dict[str, dict[str, Any]]:
     """Frames put every 1/hz s (shared memory, newest wins in the service) to one service per
     detector, one after the other; per detector: frames put, ``tag`` answers, the median
@@ -153,7 +158,7 @@ def paced(
     with zenoh.open(loopback_config(listen=[endpoint])) as session:
         for detector in detectors:
             camera = Camera(True)
-            with services((detector,), endpoint, session) as remotes:
+            with services((detector,), endpoint, session, flags=flags) as remotes:
                 remote = remotes[detector]
                 remote.warm_up(width, height, camera)
                 remote.clear_records()
@@ -215,11 +220,12 @@ def main(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else 2024
     frames = {name: frames_at(name, count, seed + i) for i, name in enumerate(RESOLUTIONS)}
     progress = Progress(count * len(frames))
-    rows = overhead_rows(lockstep_sizes(frames, progress))
+    flags = ("-s", str(args.settings)) if args.settings is not None else ()
+    rows = overhead_rows(lockstep_sizes(frames, progress, flags))
     rate = None
     if args.rate:
         seconds = 2.0 if args.quick else 8.0
-        rate = paced(E2E_DETECTORS, frames["HD1080"], args.rate, seconds)
+        rate = paced(E2E_DETECTORS, frames["HD1080"], args.rate, seconds, flags)
     print(report(rows, rate, args.rate or 0.0))
     if args.json is not None:
         args.json.write_text(json.dumps({"rows": rows, "rate": rate}, indent=2))

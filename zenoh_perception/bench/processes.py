@@ -358,14 +358,17 @@ def services(
     bench_endpoint: str,
     session: zenoh.Session,
     dictionary: str = DICTIONARY,
+    flags: Sequence[str] = (),
 ) -> Iterator[dict[str, Remote]]:
-    """Start one service process per detector name (all at once: start-ups overlap), wait
+    """Start one service process per detector name (all at once: start-ups overlap), with
+    ``flags`` (more flags of ``run``, e.g. ``-s FILE``) for the services, not the floor; wait
     until each is ready; always stopped and undeclared on exit."""
     processes: list[ServiceProcess] = []
     remotes: dict[str, Remote] = {}
     try:
         for name in names:
-            processes.append(ServiceProcess(name, name, bench_endpoint, dictionary))
+            extra = () if name == FLOOR else flags
+            processes.append(ServiceProcess(name, name, bench_endpoint, dictionary, extra))
             remotes[name] = Remote(session, processes[-1])
         for remote in remotes.values():
             remote.wait_ready()

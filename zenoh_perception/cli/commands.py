@@ -517,7 +517,8 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--settings",
         type=Path,
         metavar="FILE",
-        help="the service settings to bench (default: the defaults)",
+        help="the service settings to bench (default: the defaults); also given to the "
+        "service processes of --e2e and --overhead",
     )
     group.add_argument(
         "--e2e", action="store_true", help="also run each video through service processes"
