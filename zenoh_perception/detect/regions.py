@@ -1,11 +1,20 @@
-"""Rectangles of a frame to read again, around quads; markers found twice."""
+"""Rectangles of a frame to read again, around quads; markers found twice, or seen again on
+the next frame."""
 
 from __future__ import annotations
+
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.types import Detection
+from zenoh_perception.tags.geometry import mean_side
+
+#: A marker on the frame before is seen again when its centre moved at most this share of its
+#: mean side and its mean side changed at most by this share.
+SAME_PLACE: Final = 0.25
+SAME_SIZE: Final = 0.2
 
 #: (x0, y0, x1, y1) in pixels, end exclusive.
 Rect = tuple[int, int, int, int]
@@ -44,3 +53,15 @@ def same_marker(a: Detection, b: Detection) -> bool:
         return False
     distance = float(np.linalg.norm(a.corners.mean(axis=0) - b.corners.mean(axis=0)))
     return distance < 0.5 * side(b.corners)
+
+
+def seen_again(now: Detection, before: Detection) -> bool:
+    """Whether ``now`` is the marker ``before`` was on the previous frame of a stream: same id
+    and dictionary, about the same place and size (:data:`SAME_PLACE`, :data:`SAME_SIZE`)."""
+    if now.tag_id != before.tag_id or now.dictionary != before.dictionary:
+        return False
+    size = mean_side(before.corners)
+    if abs(mean_side(now.corners) - size) > SAME_SIZE * size:
+        return False
+    shift = np.abs(now.corners.mean(axis=0) - before.corners.mean(axis=0))
+    return float(shift.max()) <= SAME_PLACE * size

@@ -51,6 +51,7 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_dictionary
+from zenoh_perception.detect.regions import seen_again
 from zenoh_perception.detect.types import Detection, dictionary_names
 from zenoh_perception.tags.geometry import mean_side
 
@@ -73,10 +74,6 @@ GRID_RATIO_MAX: Final = 2.5
 GRID_SIZES: Final = (4, 5, 6, 7)
 #: Least decision margin, bits: how much better the own code explains the cells than any other.
 MARGIN_MIN_BITS: Final = 0.5
-#: A marker kept on the frame before is seen again when its centre moved at most this share
-#: of its side and its side changed at most by this share.
-SAME_PLACE: Final = 0.25
-SAME_SIZE: Final = 0.2
 #: Pixels a cell of the finest grid gets in the warped patch (its central half: 4 x 4).
 FINEST_CELL_PX: Final = 8
 
@@ -310,10 +307,9 @@ class Verifier:
     commas) that the checks above reject; a detection is read on the grid of the dictionary
     it names.
 
-    :meth:`verify` is meant for the frames of one stream in order: a detection with the id,
-    the dictionary, about the place (centre within :data:`SAME_PLACE` of a side) and the size
-    (within :data:`SAME_SIZE`) of one kept on the frame before is the same marker seen
-    again, and is kept without being read again.
+    :meth:`verify` is meant for the frames of one stream in order: a detection that is one
+    kept on the frame before seen again (:func:`~.regions.seen_again`) is kept without being
+    read again.
     """
 
     def __init__(self, dictionary: str) -> None:
@@ -323,7 +319,7 @@ class Verifier:
         self._codes = {name: dictionary_codes(name) for name in names if min_distance(name) > 1}
         self._first = names[0]
         self._shape: tuple[int, ...] = ()
-        self._kept: list[tuple[int, str, npt.NDArray[np.float32], float]] = []
+        self._kept: list[Detection] = []
 
     def check(self, gray: Gray, detection: Detection) -> str | None:
         """Why ``detection`` is vetoed, or None when it is kept."""
@@ -341,32 +337,18 @@ class Verifier:
         margin = decision_margin(reading.levels, detection.tag_id, codes)
         return "margin" if margin < MARGIN_MIN_BITS else None
 
-    def _seen(self, detection: Detection, centre: npt.NDArray[np.float32], side: float) -> bool:
-        for tag_id, dictionary, where, size in self._kept:
-            if (
-                tag_id == detection.tag_id
-                and dictionary == detection.dictionary
-                and abs(side - size) <= SAME_SIZE * size
-                and float(np.abs(centre - where).max()) <= SAME_PLACE * size
-            ):
-                return True
-        return False
-
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
         """The detections kept (the same objects, in order) and the reason of each veto."""
         if gray.shape != self._shape:
             self._shape, self._kept = gray.shape, []
         kept: list[Detection] = []
         reasons: list[str] = []
-        following: list[tuple[int, str, npt.NDArray[np.float32], float]] = []
         for detection in detections:
-            centre = detection.corners.mean(axis=0)
-            side = mean_side(detection.corners)
-            reason = None if self._seen(detection, centre, side) else self.check(gray, detection)
+            again = any(seen_again(detection, before) for before in self._kept)
+            reason = None if again else self.check(gray, detection)
             if reason is None:
                 kept.append(detection)
-                following.append((detection.tag_id, detection.dictionary, centre, side))
             else:
                 reasons.append(reason)
-        self._kept = following
+        self._kept = kept
         return kept, reasons
