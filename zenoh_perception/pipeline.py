@@ -5,10 +5,12 @@ from __future__ import annotations
 import time
 from collections import Counter
 from dataclasses import dataclass
+from typing import Final
 
 import cv2
 import numpy as np
 
+from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import REASONS, Verifier
@@ -29,6 +31,10 @@ from zenoh_perception.tags.selection import (
     selected_message,
 )
 from zenoh_perception.wire.frames import Frame, to_gray
+
+#: Why a detection OpenCV reported is dropped: the verifier's reasons, and a marker not yet
+#: seen on ``confirm_frames`` frames in a row.
+VETO_REASONS: Final = (*REASONS, "unconfirmed")
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,17 +102,23 @@ def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
 class TagFinder:
     """What runs on every frame, in the service and in the bench: the frame converted to grey,
     the detector, then (``min_side_px`` > 0) tags whose mean side is shorter dropped, then
-    (with a ``verifier``) the detections it vetoes dropped, counted by reason in ``vetoed``."""
+    (with a ``verifier``) the detections it vetoes dropped, then (``confirm_frames`` > 1) those
+    not yet seen on that many frames in a row held back; counted by reason in ``vetoed``."""
 
     def __init__(
-        self, detector: Detector, min_side_px: float = 0.0, verifier: Verifier | None = None
+        self,
+        detector: Detector,
+        min_side_px: float = 0.0,
+        verifier: Verifier | None = None,
+        confirm_frames: int = 1,
     ) -> None:
         self.detector = detector
         self._min_side_px = min_side_px
         self._verifier = verifier
+        self._confirmer = Confirmer(confirm_frames) if confirm_frames > 1 else None
         # every reason present from the start: a status read from another thread copies a
         # dict whose keys never change
-        self.vetoed: Counter[str] = Counter(dict.fromkeys(REASONS, 0))
+        self.vetoed: Counter[str] = Counter(dict.fromkeys(VETO_REASONS, 0))
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting it to grey first."""
@@ -119,6 +131,9 @@ class TagFinder:
         if self._verifier is not None and detections:
             detections, reasons = self._verifier.verify(gray, detections)
             self.vetoed.update(reasons)
+        if self._confirmer is not None:
+            detections, held = self._confirmer.confirm(gray.shape, detections)
+            self.vetoed["unconfirmed"] += held
         return detections, converted - start
 
 
@@ -148,7 +163,9 @@ class Pipeline:
         if detector is None:
             detector = detector_for(settings)
         verifier = Verifier(settings.dictionary) if settings.verify else None
-        self._finder = TagFinder(detector, settings.min_tag_side_px, verifier)
+        self._finder = TagFinder(
+            detector, settings.min_tag_side_px, verifier, settings.confirm_frames
+        )
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
             intrinsics_from_settings(settings),
@@ -171,7 +188,7 @@ class Pipeline:
 
     @property
     def vetoed(self) -> Counter[str]:
-        """Detections vetoed so far, by reason (:data:`~.detect.verify.REASONS`)."""
+        """Detections vetoed so far, by reason (:data:`VETO_REASONS`)."""
         return self._finder.vetoed
 
     def process(self, frame: Frame) -> Analysis:

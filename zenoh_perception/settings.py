@@ -153,7 +153,11 @@ class Settings:
     )
     verify: bool = field(
         default=True,
-        metadata=_doc("re-read each tag OpenCV reports, veto look-alikes (never adds or changes one)"),
+        metadata=_doc("re-read each tag OpenCV reports and veto look-alikes (never adds one)"),
+    )
+    confirm_frames: int = field(
+        default=1,
+        metadata=_doc("report a tag once seen on N frames in a row, about in place; 1 = at once"),
     )
     # Limits and budget
     max_frame_bytes: int = field(
@@ -262,6 +266,7 @@ def _cpu_count() -> int:
 #: The bounds of every numeric setting (``config/perception.toml`` states them too).
 BOUNDS: Final[Mapping[str, Bound]] = {
     "full_scan_period": Bound(1, 1000),
+    "confirm_frames": Bound(1, 100),
     "opencv_threads": Bound(0, 4 * _cpu_count(), text="[0, 4 x CPU cores]"),
     "min_tag_side_px": Bound(0, MAX_DIMENSION),
     "max_frame_bytes": Bound(1024, 4 << 30),

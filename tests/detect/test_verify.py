@@ -13,7 +13,7 @@ import pytest
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import REASONS, Verifier, decision_margin, dictionary_codes
-from zenoh_perception.pipeline import Pipeline, TagFinder
+from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
 from zenoh_perception.settings import Settings
@@ -110,10 +110,10 @@ def test_the_finder_counts_vetoes_by_reason() -> None:
     rng = np.random.default_rng(7)
     image = lookalike_frame("keys", "DICT_4X4_50", rng)
     finder = TagFinder(OpenCvDetector("DICT_4X4_50"), verifier=Verifier("DICT_4X4_50"))
-    assert set(finder.vetoed) == set(REASONS) and sum(finder.vetoed.values()) == 0
+    assert set(finder.vetoed) == set(VETO_REASONS) and sum(finder.vetoed.values()) == 0
     detections, _ = finder.find(_frame(image))
     assert detections == []
-    assert sum(finder.vetoed.values()) > 0 and set(finder.vetoed) == set(REASONS)
+    assert sum(finder.vetoed.values()) > 0 and set(finder.vetoed) == set(VETO_REASONS)
 
 
 def test_a_marker_at_the_image_edge_is_read_without_its_missing_quiet_zone() -> None:

@@ -26,7 +26,7 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.verify import REASONS
+from zenoh_perception.pipeline import VETO_REASONS
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.service.node import PerceptionService, run
@@ -423,4 +423,4 @@ def test_vetoed_look_alikes_are_counted_by_reason(rig: Rig) -> None:
         lambda: sum(rig.service.status()["vetoed_by_reason"].values()) == expected,
         what="the vetoes counted",
     )
-    assert set(rig.service.status()["vetoed_by_reason"]) == set(REASONS)
+    assert set(rig.service.status()["vetoed_by_reason"]) == set(VETO_REASONS)

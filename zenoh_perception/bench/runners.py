@@ -66,7 +66,8 @@ class Baseline:
 class Project:
     """A service detector (default: ``tracking``; one per frame set, like one per stream) run
     on the BGRA frame as the service's pipeline runs it (:class:`TagFinder`: grey conversion
-    included, tags shorter than ``min_side_px`` dropped, look-alikes vetoed when ``verify``)."""
+    included, tags shorter than ``min_side_px`` dropped, look-alikes vetoed when ``verify``,
+    tags held back until seen on ``confirm_frames`` frames)."""
 
     def __init__(
         self,
@@ -75,10 +76,11 @@ class Project:
         min_side_px: float = 0.0,
         *,
         verify: bool = True,
+        confirm_frames: int = 1,
     ) -> None:
         self.detector = make_detector("tracking", dictionary) if detector is None else detector
         verifier = Verifier(dictionary) if verify else None
-        self._finder = TagFinder(self.detector, min_side_px, verifier)
+        self._finder = TagFinder(self.detector, min_side_px, verifier, confirm_frames)
 
     def run(self, image: Image) -> tuple[list[Detection], float]:
         start = time.perf_counter()
@@ -95,7 +97,13 @@ def pair(dictionary: str, settings: Settings) -> dict[str, Runner]:
     )
     return {
         "opencv": Baseline(dictionary),
-        "service": Project(dictionary, detector, settings.min_tag_side_px, verify=settings.verify),
+        "service": Project(
+            dictionary,
+            detector,
+            settings.min_tag_side_px,
+            verify=settings.verify,
+            confirm_frames=settings.confirm_frames,
+        ),
     }
 
 
