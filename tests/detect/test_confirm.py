@@ -23,7 +23,7 @@ def _tag(tag_id: int, x0: float, y0: float = 100.0, side: float = 60.0) -> Detec
 
 def test_a_marker_is_reported_from_its_nth_frame_in_a_row() -> None:
     confirmer = Confirmer(3)
-    moving = [_tag(7, 100.0 + 5 * k) for k in range(5)]  # 5 px a frame: about in place
+    moving = [_tag(7, 100.0 + 50 * k) for k in range(5)]  # under a side a frame: followed
     answers = [confirmer.confirm(SHAPE, [tag]) for tag in moving]
     assert [held for _, held in answers] == [1, 1, 0, 0, 0]
     assert [kept for kept, _ in answers][2:] == [[moving[2]], [moving[3]], [moving[4]]]
@@ -40,8 +40,8 @@ def test_a_one_frame_look_alike_is_never_reported() -> None:
     "then",
     [
         _tag(8, 100),  # another id
-        _tag(7, 200),  # far from where it was
-        _tag(7, 100, side=90.0),  # half as large again
+        _tag(7, 250),  # farther than two sides from where it was
+        _tag(7, 100, side=100.0),  # more than half as large again
         Detection(7, _tag(7, 100).corners, "DICT_4X4_100"),  # another dictionary
     ],
 )

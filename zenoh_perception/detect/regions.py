@@ -55,13 +55,16 @@ def same_marker(a: Detection, b: Detection) -> bool:
     return distance < 0.5 * side(b.corners)
 
 
-def seen_again(now: Detection, before: Detection) -> bool:
+def seen_again(
+    now: Detection, before: Detection, place: float = SAME_PLACE, size: float = SAME_SIZE
+) -> bool:
     """Whether ``now`` is the marker ``before`` was on the previous frame of a stream: same id
-    and dictionary, about the same place and size (:data:`SAME_PLACE`, :data:`SAME_SIZE`)."""
+    and dictionary, its centre moved at most ``place`` times and its mean side changed at most
+    ``size`` times ``before``'s mean side."""
     if now.tag_id != before.tag_id or now.dictionary != before.dictionary:
         return False
-    size = mean_side(before.corners)
-    if abs(mean_side(now.corners) - size) > SAME_SIZE * size:
+    side_px = mean_side(before.corners)
+    if abs(mean_side(now.corners) - side_px) > size * side_px:
         return False
     shift = np.abs(now.corners.mean(axis=0) - before.corners.mean(axis=0))
-    return float(shift.max()) <= SAME_PLACE * size
+    return float(shift.max()) <= place * side_px
