@@ -18,7 +18,9 @@ from zenoh_perception.bench.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import FrameAbandonedError, ProcessingError
+from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.service.watchdog import IsolatedDetector
+from zenoh_perception.wire.frames import ENCODINGS, Frame, to_gray
 
 #: A pixel value that makes the test detectors misbehave; any other image reads normally.
 _STALL, _CRASH, _FAIL = 1, 2, 3
@@ -149,3 +151,35 @@ def test_close_kills_the_children_and_frees_the_shared_memory() -> None:
     isolated.close()
     assert not any(child.is_alive() for child in children)
     assert not Path("/dev/shm", segment.name.lstrip("/")).exists()
+
+
+def test_an_image_converted_into_the_gray_buffer_is_read_where_it_is() -> None:
+    gray = _gray(5)
+    expected = make_detector("opencv", "DICT_4X4_50").detect(gray)
+    with IsolatedDetector(partial(make_detector, "opencv", "DICT_4X4_50"), 5.0) as isolated:
+        buffer = isolated.gray_buffer(*gray.shape)
+        buffer[...] = gray
+        _same(isolated.detect(buffer), expected)
+        _same(isolated.detect(gray.copy()), expected)  # any other image is copied in
+        # a larger frame grows the segment while the past frame's array is still alive
+        big = np.zeros((960, 1280), np.uint8)
+        big[:480, :640] = gray
+        large = isolated.gray_buffer(*big.shape)
+        large[...] = big
+        assert [d.tag_id for d in isolated.detect(large)] == [5]
+        assert [d.tag_id for d in isolated.detect(buffer[:240, :320].copy())] == []
+        del buffer, large
+
+
+def test_the_finder_converts_into_the_detectors_gray_buffer() -> None:
+    frame = marker_frame(640, 480, 5, side=120)
+    bgra = np.frombuffer(frame.payload, np.uint8).reshape(480, 640, 4)
+    decoded = Frame(bgra, ENCODINGS["bgra8"], None, "test", None)
+    with IsolatedDetector(partial(make_detector, "opencv", "DICT_4X4_50"), 5.0) as isolated:
+        finder = TagFinder(isolated)
+        found, _ = finder.find(decoded)
+        assert [d.tag_id for d in found] == [5]
+        assert isolated._segment is not None
+        shared = np.ndarray((480, 640), np.uint8, isolated._segment.buf)
+        np.testing.assert_array_equal(shared, to_gray(decoded))
+        del shared

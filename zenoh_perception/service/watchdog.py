@@ -7,8 +7,10 @@ thousands of candidate quads, and one HD720 frame takes seconds. A Python thread
 ``detectMarkers`` cannot be stopped, so the detector runs in a process of its own:
 
 - :class:`IsolatedDetector` is a :class:`~zenoh_perception.detect.types.Detector`: the grey
-  image goes to the child through one shared-memory segment (one copy), the detections come
-  back through a pipe.
+  image goes to the child through one shared-memory segment, the detections come back
+  through a pipe. :meth:`IsolatedDetector.gray_buffer` is that segment as an array, so that
+  the grey conversion writes the image straight into it (no copy); any other image is copied
+  in.
 - A read that takes longer than ``deadline_s`` (or that is still running when ``stop`` is
   set) kills the child and raises :class:`~zenoh_perception.errors.FrameAbandonedError`; the
   spare child, started and ready beforehand, takes the next frame at once, and a new spare is
@@ -28,6 +30,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable
+from contextlib import suppress
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -118,6 +121,7 @@ class IsolatedDetector:
         origin = getattr(factory, "func", factory)
         self._context.set_forkserver_preload([__name__, origin.__module__])
         self._segment: shared_memory.SharedMemory | None = None
+        self._retired: list[shared_memory.SharedMemory] = []  # unlinked, still mapped
         self._active: _Child | None = None
         self._spare: _Child | None = None
         self.restarts = 0
@@ -136,9 +140,13 @@ class IsolatedDetector:
                 child.kill()
         self._active = self._spare = None
         if self._segment is not None:
-            self._segment.close()
             self._segment.unlink()
+            self._retired.append(self._segment)
             self._segment = None
+        for segment in self._retired:
+            with suppress(BufferError):  # still viewed: unmapped once the view is gone
+                segment.close()
+        self._retired = []
 
     def __enter__(self) -> IsolatedDetector:
         self.start()
@@ -162,7 +170,10 @@ class IsolatedDetector:
             started = time.monotonic()
         height, width = gray.shape[:2]
         segment = self._segment_for(height * width)
-        np.ndarray((height, width), np.uint8, segment.buf)[...] = gray
+        shared = np.ndarray((height, width), np.uint8, segment.buf)
+        if not np.shares_memory(gray, shared):  # not converted into gray_buffer()
+            shared[...] = gray
+        del shared
         child.conn.send((segment.name, height, width))
         if not self._wait(child, started + self.deadline_s):
             elapsed_ms = (time.monotonic() - started) * 1e3
@@ -207,11 +218,18 @@ class IsolatedDetector:
         if not self._stop.is_set():
             self.start()
 
+    def gray_buffer(self, height: int, width: int) -> npt.NDArray[np.uint8]:
+        """A (height, width) array in the segment the child reads the next frame from."""
+        return np.ndarray((height, width), np.uint8, self._segment_for(height * width).buf)
+
     def _segment_for(self, size: int) -> shared_memory.SharedMemory:
-        """The shared segment, grown (replaced) when a frame needs more than it holds."""
+        """The shared segment, replaced by one at least twice as large when a frame needs more
+        than it holds. The one replaced is unlinked at once but stays mapped until
+        :meth:`close`: an array of a past frame (a gray_buffer) may still view it."""
         if self._segment is None or self._segment.size < size:
             if self._segment is not None:
-                self._segment.close()
                 self._segment.unlink()
+                self._retired.append(self._segment)
+                size = max(size, 2 * self._segment.size)
             self._segment = shared_memory.SharedMemory(create=True, size=max(size, 1))
         return self._segment

@@ -355,11 +355,16 @@ def encode_image_cdr(
     return raw
 
 
-def to_gray(frame: Frame) -> Pixels:
-    """Convert straight from the frame's encoding to one grey channel (no intermediate BGR)."""
+def to_gray(frame: Frame, out: Pixels | None = None) -> Pixels:
+    """Convert straight from the frame's encoding to one grey channel (no intermediate BGR),
+    into ``out`` (an (height, width) uint8 array) when given, else into a new array (a grey
+    frame is then returned as it is)."""
     if frame.encoding.to_gray is None:
-        return frame.pixels
-    return cast(Pixels, cv2.cvtColor(frame.pixels, frame.encoding.to_gray))
+        if out is None:
+            return frame.pixels
+        np.copyto(out, frame.pixels.reshape(out.shape))
+        return out
+    return cast(Pixels, cv2.cvtColor(frame.pixels, frame.encoding.to_gray, dst=out))
 
 
 def to_bgr(frame: Frame) -> Pixels:
