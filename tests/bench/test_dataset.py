@@ -317,7 +317,7 @@ def test_a_manifest_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path)
     huge = tmp_path / "huge.json"
     with huge.open("wb") as file:  # sparse: no disk used
         file.truncate(dataset.MANIFEST_MAX_BYTES + 1)
-    assert "more than the" in one_line_error(bench(str(huge)))
+    assert "is larger than" in one_line_error(bench(str(huge)))
     assert "cannot read manifest" in one_line_error(bench(str(tmp_path / "none.json")))
 
 

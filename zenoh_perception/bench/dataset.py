@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import stat
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -50,6 +49,7 @@ from zenoh_perception.bench.scoring import Score, rounded
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import dictionary_name
 from zenoh_perception.errors import PerceptionError, SettingsError
+from zenoh_perception.files import read_text_file
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.image_header import image_header_size
 
@@ -209,32 +209,18 @@ def _not_a_number(word: str) -> Any:
 
 def _read_manifest(path: Path) -> Any:
     try:
-        status = path.stat()
-    except OSError as err:
-        msg = f"cannot read manifest {path}: {err.strerror}"
-        raise DatasetError(msg) from err
-    # /dev/zero, a FIFO or a huge file would block or fill memory when read whole
-    if not stat.S_ISREG(status.st_mode):
-        msg = f"manifest {path} is not a regular file"
-        raise DatasetError(msg)
-    if status.st_size > MANIFEST_MAX_BYTES:
-        msg = (
-            f"manifest {path} is {status.st_size} bytes, more than the {MANIFEST_MAX_BYTES} allowed"
-        )
-        raise DatasetError(msg)
+        # a regular file only (/dev/zero or a FIFO would block or fill memory), size-bounded
+        text = read_text_file(path, "manifest", MANIFEST_MAX_BYTES)
+    except SettingsError as err:
+        raise DatasetError(str(err)) from err
     try:
-        with path.open("rb") as file:
-            data = file.read(MANIFEST_MAX_BYTES + 1)
-        if len(data) > MANIFEST_MAX_BYTES:
-            msg = f"manifest {path} grew past {MANIFEST_MAX_BYTES} bytes while read"
-            raise DatasetError(msg)
-        return json.loads(data.decode("utf-8"), parse_constant=_not_a_number)
+        return json.loads(text, parse_constant=_not_a_number)
     except RecursionError as err:
         msg = f"cannot read manifest {path}: JSON nested too deep"
         raise DatasetError(msg) from err
-    except (OSError, UnicodeDecodeError, ValueError) as err:
-        text = " ".join(str(err).split())  # one line
-        msg = f"cannot read manifest {path}: {text}"
+    except ValueError as err:
+        one_line = " ".join(str(err).split())
+        msg = f"cannot read manifest {path}: {one_line}"
         raise DatasetError(msg) from err
 
 
