@@ -185,15 +185,18 @@ def test_an_id_that_two_grey_cells_make_a_coin_toss_needs_a_paper_surround(
         if row // 4 != first and int((codes[4 * first] != codes[row]).sum()) == 2
     )
     side, x0, y0 = 120.0, 60.0, 50.0
-    gray = render_markers(
-        240,
-        220,
-        [(first, _square(x0, y0, side))],
-        dictionary="DICT_4X4_1000",
-        background=background,
-        quiet_zone_bits=0,
+    clean_gray = np.ascontiguousarray(
+        render_markers(
+            240,
+            220,
+            [(first, _square(x0, y0, side))],
+            dictionary="DICT_4X4_1000",
+            background=background,
+            quiet_zone_bits=0,
+        )[:, :, 1],
+        np.uint8,
     )
-    gray = np.asarray(gray[:, :, 1], np.uint8).copy()
+    gray = clean_gray.copy()
     cell = side / 6
     for index in np.flatnonzero(codes[4 * first] != codes[4 * other]):
         row, col = divmod(int(index), 4)
@@ -205,15 +208,6 @@ def test_an_id_that_two_grey_cells_make_a_coin_toss_needs_a_paper_surround(
     expected = ([], ["margin"]) if vetoed else (found, [])
     assert Verifier("DICT_4X4_1000").verify(gray, found) == expected
     # the same marker drawn clean is kept
-    clean = render_markers(
-        240,
-        220,
-        [(first, _square(x0, y0, side))],
-        dictionary="DICT_4X4_1000",
-        background=background,
-        quiet_zone_bits=0,
-    )
-    clean_gray = np.asarray(clean[:, :, 1], np.uint8).copy()
     (kept,) = OpenCvDetector("DICT_4X4_1000").detect(clean_gray)
     assert Verifier("DICT_4X4_1000").check(clean_gray, kept) is None
 
