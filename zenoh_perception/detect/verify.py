@@ -108,7 +108,6 @@ class _Layout:
     """The warped patch of a marker with ``marker_size`` inner cells a side, and where every
     grid's cell cores lie in the patch's integral image (flattened)."""
 
-    cell_px: int  # pixels a cell of the marker's own grid
     side_px: int  # the patch's side: the marker, its border and one ring of cells
     target: npt.NDArray[np.float32]  # the marker's corners in the patch
     ring: Mask
@@ -117,7 +116,8 @@ class _Layout:
     own_cores: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]  # own grid, one axis
     corners: npt.NDArray[np.intp]  # (4, cores): the cores' corners, own grid then finer ones
     area: Floats  # pixels of each core
-    finer: npt.NDArray[np.intp]  # where each finer grid's cores start in ``corners``
+    finer_starts: npt.NDArray[np.intp]  # where each finer grid's cores start after the own's
+    finer_cells: npt.NDArray[np.intp]  # how many cores each finer grid has
 
 
 def _cores(start: int, stop: int, cells: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
@@ -152,9 +152,8 @@ def _layout(marker_size: int) -> _Layout:
         for k, (rows, cols) in enumerate(((high, high), (low, high), (high, low), (low, low))):
             corners[k] = np.concatenate([corners[k], (rows[:, None] * stride + cols).ravel()])
         areas.append(np.outer(high - low, high - low).ravel().astype(np.float64))
-    starts = np.cumsum([0] + [low.size**2 for low, _ in grids])[1:-1]
+    finer_cells = np.asarray([low.size**2 for low, _ in grids[1:]], np.intp)
     return _Layout(
-        cell,
         side,
         target,
         ring,
@@ -163,7 +162,8 @@ def _layout(marker_size: int) -> _Layout:
         grids[0],
         np.stack(corners),
         np.concatenate(areas),
-        np.asarray(starts, np.intp),
+        np.cumsum(finer_cells) - finer_cells,
+        finer_cells,
     )
 
 
@@ -241,9 +241,8 @@ def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -
     own = float(spread[~layout.ring].mean())
     finer = spreads[cells * cells :]
     if finer.size:
-        bounds = layout.finer - cells * cells
-        counts = np.diff(np.append(bounds, finer.size))
-        least = float((np.add.reduceat(finer, bounds) / counts).min())
+        means_per_grid = np.add.reduceat(finer, layout.finer_starts) / layout.finer_cells
+        least = float(means_per_grid.min())
     else:
         least = own
     grid_ratio = own / max(least, 1e-3)
