@@ -83,6 +83,7 @@ def test_every_setting_has_a_flag() -> None:
         {"policy": "random"},
         {"metric": "loudness"},
         {"detector": "magic"},
+        {"detector_process": "sometimes"},
         {"dictionary": "DICT_9X9_1"},
         {"max_range_m": 0},
         {"max_range_m": float("nan")},

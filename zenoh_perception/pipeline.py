@@ -123,7 +123,8 @@ class TagFinder:
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting it to grey first."""
         start = time.perf_counter()
-        # a detector in another process offers the buffer it reads from: no copy into it
+        # a detector in another process offers the buffer it reads from (None: any array), so
+        # that the grey image is not copied into it
         buffer = getattr(self.detector, "gray_buffer", None)
         gray = to_gray(frame, None if buffer is None else buffer(*frame.pixels.shape[:2]))
         converted = time.perf_counter()

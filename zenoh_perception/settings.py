@@ -52,6 +52,11 @@ from zenoh_perception.wire.rmw_zenoh import (
 from zenoh_perception.wire.ros_topics import ROS_TOPICS
 
 METRICS = tuple(Metric)
+#: When detection runs in a child process (with a frame deadline): ``on_stall``, in the
+#: service's process until a frame stalls past the deadline, then in the child for a while;
+#: ``always``, every frame (each then costs a hand-off to another process, and a crash inside
+#: OpenCV kills only the child).
+DETECTOR_PROCESSES: Final = ("on_stall", "always")
 
 #: Largest settings file read, bytes.
 MAX_SETTINGS_FILE_BYTES: Final = MAX_TEXT_FILE_BYTES
@@ -175,6 +180,10 @@ class Settings:
     frame_deadline_ms: float = field(
         default=400.0,
         metadata=_doc("a detection running longer is abandoned (counted); 0 = no deadline"),
+    )
+    detector_process: str = field(
+        default="on_stall",
+        metadata=_doc("with a deadline, when detection runs in a child process: on_stall | always"),
     )
     # Selection and closeness
     policy: str = field(default="closest", metadata=_doc("tag selection: closest | center"))
@@ -483,6 +492,12 @@ def _validate(settings: Settings) -> None:
         raise SettingsError(msg)
     if settings.metric not in METRICS:
         msg = f"metric must be one of {', '.join(METRICS)}, not {settings.metric!r}"
+        raise SettingsError(msg)
+    if settings.detector_process not in DETECTOR_PROCESSES:
+        msg = (
+            f"detector_process must be one of {', '.join(DETECTOR_PROCESSES)}, "
+            f"not {settings.detector_process!r}"
+        )
         raise SettingsError(msg)
     if settings.detector not in DETECTORS:
         msg = f"detector must be one of {', '.join(DETECTORS)}, not {settings.detector!r}"

@@ -6,9 +6,14 @@ Threads:
   latest-frame-wins mailbox (O(1), no copy, no decoding).
 - One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
   zero-copy view, runs the pipeline and publishes ``tag`` then the record (and the debug image
-  while it is watched). With ``frame_deadline_ms`` the detector itself runs in a child
-  process (:mod:`~zenoh_perception.service.watchdog`): a frame it does not finish in time is
-  abandoned (a rejection, counted with its time) and the next frame read by a fresh child.
+  while it is watched).
+- With ``frame_deadline_ms`` a frame the detector does not finish in time is abandoned (a
+  rejection, counted with its time) and the newest frame read next by a fresh detector. By
+  default (``detector_process = "on_stall"``) the worker detects in-process and a watchdog
+  thread abandons a read past the deadline, leaves that worker to end on its own and starts
+  another (:mod:`~zenoh_perception.service.guard`); for a while after, frames go to a child
+  process that is killed on a stall (:mod:`~zenoh_perception.service.watchdog`), as every
+  frame does with ``"always"``.
 - One reporter thread writes the periodic stats line.
 
 Everything the worker does with a sample, up to and including each publication, runs inside
@@ -48,6 +53,7 @@ from zenoh_perception.errors import (
     zenoh_error_text,
 )
 from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
+from zenoh_perception.service.guard import GuardedDetector, StaleDetection
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
 from zenoh_perception.service.ros_outputs import RosOutputs
@@ -115,13 +121,16 @@ class PerceptionService:
         self._other_tokens = 0
         self._other_lock = threading.Lock()
         self._stop = threading.Event()
-        # With a deadline the settings' detector runs in a child process that a stalled frame
-        # is abandoned with (service/watchdog.py); a detector given here runs in-process.
-        self._isolated: IsolatedDetector | None = None
+        # With a deadline the settings' detector is guarded (service/guard.py) or runs in a
+        # child process (service/watchdog.py); a detector given here runs unguarded.
+        self._isolated: IsolatedDetector | GuardedDetector | None = None
+        self._guard: GuardedDetector | None = None
         if detector is None and settings.frame_deadline_ms > 0:
-            self._isolated = IsolatedDetector(
-                partial(detector_for, settings), settings.frame_deadline_ms / 1e3, stop=self._stop
-            )
+            factory, deadline_s = partial(detector_for, settings), settings.frame_deadline_ms / 1e3
+            if settings.detector_process == "always":
+                self._isolated = IsolatedDetector(factory, deadline_s, stop=self._stop)
+            else:
+                self._isolated = self._guard = GuardedDetector(factory, deadline_s, stop=self._stop)
             detector = self._isolated
         self._pipeline = Pipeline(settings, detector)
         self._camera_info: tuple[Intrinsics, tuple[int, int]] | None = None
@@ -138,6 +147,7 @@ class PerceptionService:
         self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._declared: list[Any] = []
         self._threads: list[threading.Thread] = []
+        self._workers: list[threading.Thread] = []
         self._started = False
 
     # -- life cycle -------------------------------------------------------------------------
@@ -208,11 +218,15 @@ class PerceptionService:
             )
         )
         self._threads = [
-            threading.Thread(target=self._work, name="perception-worker", daemon=True),
-            threading.Thread(target=self._report, name="perception-stats", daemon=True),
+            threading.Thread(target=self._report, name="perception-stats", daemon=True)
         ]
+        if self._guard is not None:
+            self._threads.append(
+                threading.Thread(target=self._watch, name="perception-watchdog", daemon=True)
+            )
         for thread in self._threads:
             thread.start()
+        self._start_worker()
         # Subscribe last: every frame that arrives finds the pipeline ready.
         on_camera, on_compressed = self._on_frame, self._on_compressed_frame
         if self._ros.rmw_zenoh:
@@ -229,7 +243,11 @@ class PerceptionService:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
         self._stop.set()
         self._mailbox.close()
-        for thread in self._threads:
+        # A worker inside OpenCV is not waited for, nor one abandoned before: each ends on
+        # its own (daemon threads).
+        stuck = self._guard.abandon() if self._guard is not None else None
+        current = self._workers[-1:]
+        for thread in [*self._threads, *(w for w in current if w.ident != stuck)]:
             thread.join(timeout=2.0)
         if self._isolated is not None:
             self._isolated.close()
@@ -340,14 +358,25 @@ class PerceptionService:
 
     # -- worker ------------------------------------------------------------------------------
 
+    def _start_worker(self) -> None:
+        worker = threading.Thread(target=self._work, name="perception-worker", daemon=True)
+        # only the current worker and the abandoned ones still running are kept
+        self._workers = [w for w in self._workers if w.is_alive()] + [worker]
+        worker.start()
+
     def _work(self) -> None:
+        replaced = False
         try:
             while not self._stop.is_set():
                 arrival = self._mailbox.take(_POLL_S)
                 if arrival is not None:
                     self._handle(arrival)
+        except StaleDetection:
+            # The watchdog abandoned this thread's frame and another worker took over: end
+            # without touching anything else.
+            replaced = True
         finally:
-            if not self._stop.is_set():
+            if not replaced and not self._stop.is_set():
                 # Anything unforeseen: say so, and let run() exit non-zero rather than keep
                 # a liveliness token that claims a service that answers nothing.
                 log.error("event=worker_died")
@@ -455,6 +484,19 @@ class PerceptionService:
                 self._publish_debug(frame, analysis, record.stamp_ns)
             except ProcessingError as err:
                 self._processing_failed(err)
+
+    def _watch(self) -> None:
+        """Abandon an in-process detection past the deadline, and start another worker."""
+        guard = self._guard
+        assert guard is not None  # the thread runs only with a guard
+        while not self._stop.wait(guard.poll_s()):
+            elapsed_ms = guard.check()
+            if elapsed_ms is None:
+                continue
+            err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
+            self.stats.on_abandoned(elapsed_ms)
+            self._reject(err.reason, err)
+            self._start_worker()
 
     def _hint_if_tagless(self, tagged: bool) -> None:
         """Once ``no_tag_hint_s`` of frames all had no tag, say what to check (once, until a

@@ -1,0 +1,186 @@
+"""service/guard.py: detection in the calling thread, a stalled read abandoned by ``check``
+and the frames after it read in a child process for a while."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from tests.helpers import wait_until
+from zenoh_perception.bench.rig import marker_frame
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.errors import FrameAbandonedError
+from zenoh_perception.service.guard import GuardedDetector, StaleDetection
+
+#: A first pixel of this value stalls the test detector until RELEASE is set (in this process;
+#: in the child, where nobody sets it, until the child is killed).
+_STALL = 1
+RELEASE = threading.Event()
+#: Detectors the factory built in this process (the child builds its own).
+BUILT: list[_Stalling] = []
+
+
+class _Stalling:
+    """OpenCV's detector, except on an image whose first pixel is _STALL."""
+
+    def __init__(self) -> None:
+        self._opencv = make_detector("opencv", "DICT_4X4_50")
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        if int(gray[0, 0]) == _STALL:
+            RELEASE.wait(60.0)
+        return self._opencv.detect(gray)
+
+
+def _stalling() -> _Stalling:
+    detector = _Stalling()
+    BUILT.append(detector)
+    return detector
+
+
+def _gray(tag_id: int, *, stall: bool = False) -> npt.NDArray[np.uint8]:
+    frame = marker_frame(640, 480, tag_id, side=120)
+    bgra = np.frombuffer(frame.payload, np.uint8).reshape(480, 640, 4)
+    gray = np.asarray(cv2.cvtColor(bgra, cv2.COLOR_BGRA2GRAY), np.uint8)
+    if stall:
+        gray[0, 0] = _STALL
+    return gray
+
+
+@pytest.fixture
+def guard() -> Iterator[GuardedDetector]:
+    RELEASE.clear()
+    BUILT.clear()
+    guarded = GuardedDetector(_stalling, 0.3, calm_s=0.5)
+    guarded.start()
+    try:
+        yield guarded
+    finally:
+        RELEASE.set()  # no test leaves a thread stuck
+        guarded.close()
+
+
+class _Reader(threading.Thread):
+    """A worker that reads one frame through ``guard`` and keeps what came of it."""
+
+    def __init__(self, guard: GuardedDetector, gray: npt.NDArray[np.uint8]) -> None:
+        super().__init__(daemon=True)
+        self._guard, self._gray = guard, gray
+        self.found: list[Detection] | None = None
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            self.found = self._guard.detect(self._gray)
+        except BaseException as err:  # kept for the test to look at
+            self.error = err
+
+
+def _stall(guard: GuardedDetector) -> tuple[_Reader, float]:
+    """A reader stuck on a stalling frame, and the time ``check`` abandoned it after."""
+    reader = _Reader(guard, _gray(3, stall=True))
+    reader.start()
+    abandoned: list[float] = []
+
+    def check() -> bool:
+        elapsed = guard.check()
+        if elapsed is not None:
+            abandoned.append(elapsed)
+        return bool(abandoned)
+
+    wait_until(check, timeout=10.0, what="the stalled read abandoned")
+    return reader, abandoned[0]
+
+
+def test_frames_are_read_in_the_calling_thread_until_one_stalls(guard: GuardedDetector) -> None:
+    gray = _gray(5)
+    found = guard.detect(gray)
+    assert [d.tag_id for d in found] == [5]
+    np.testing.assert_array_equal(
+        found[0].corners, make_detector("opencv", "DICT_4X4_50").detect(gray)[0].corners
+    )
+    assert not guard.in_child
+    assert guard.gray_buffer(480, 640) is None  # any array: nothing to copy into a child
+    assert guard.check() is None  # nothing in flight
+    assert guard.abandon() is None
+
+
+def test_check_leaves_a_read_alone_before_its_deadline(guard: GuardedDetector) -> None:
+    reader = _Reader(guard, _gray(3, stall=True))
+    reader.start()
+    wait_until(lambda: guard.reading, timeout=5.0, what="the read in flight")
+    assert guard.check() is None
+    assert guard.poll_s() > 0.1  # the watchdog sleeps until the read's deadline
+    RELEASE.set()
+    reader.join(5.0)
+    assert reader.error is None
+    assert not guard.reading
+    assert reader.found is not None and [d.tag_id for d in reader.found] == [3]
+
+
+def test_a_stalled_read_is_abandoned_and_its_thread_ends_stale(guard: GuardedDetector) -> None:
+    reader, elapsed_ms = _stall(guard)
+    assert elapsed_ms >= 300.0
+    assert guard.stuck == 1
+    assert guard.in_child
+    # the abandoned thread keeps running, at the lowest priority
+    assert reader.native_id is not None
+    assert os.getpriority(os.PRIO_PROCESS, reader.native_id) == 19
+    # the next frame is read by the child, straight from its segment
+    gray = _gray(7)
+    buffer = guard.gray_buffer(480, 640)
+    assert buffer is not None
+    buffer[...] = gray
+    assert [d.tag_id for d in guard.detect(buffer)] == [7]
+    RELEASE.set()
+    reader.join(5.0)
+    assert not reader.is_alive()
+    assert isinstance(reader.error, StaleDetection)
+    assert reader.found is None  # its results are dropped
+    assert guard.stuck == 0
+
+
+def test_a_stall_in_the_child_is_killed_at_the_deadline(guard: GuardedDetector) -> None:
+    reader, _ = _stall(guard)
+    started = time.monotonic()
+    with pytest.raises(FrameAbandonedError):
+        guard.detect(_gray(3, stall=True))  # the child's RELEASE is never set
+    assert time.monotonic() - started < 5.0
+    assert guard.stuck == 1  # no second thread stuck in this process
+    RELEASE.set()
+    reader.join(5.0)
+    assert [d.tag_id for d in guard.detect(_gray(9))] == [9]
+
+
+def test_frames_return_in_process_once_the_thread_ended_and_calm_passed(
+    guard: GuardedDetector,
+) -> None:
+    reader, _ = _stall(guard)
+    assert len(BUILT) == 2  # a fresh detector for the next in-process read
+    RELEASE.set()
+    reader.join(5.0)
+    wait_until(lambda: not guard.in_child, timeout=5.0, what="in process again")
+    RELEASE.clear()
+    assert guard.gray_buffer(480, 640) is None
+    assert [d.tag_id for d in guard.detect(_gray(11))] == [11]
+    # read in process: a stall there is abandoned by check again
+    reader, _ = _stall(guard)
+    assert guard.stuck == 1
+
+
+def test_abandon_gives_the_thread_of_the_read_in_flight(guard: GuardedDetector) -> None:
+    reader = _Reader(guard, _gray(3, stall=True))
+    reader.start()
+    wait_until(lambda: guard.reading, timeout=5.0, what="the read in flight")
+    assert guard.abandon() == reader.ident
+    RELEASE.set()
+    reader.join(5.0)
+    assert isinstance(reader.error, StaleDetection)

@@ -1,0 +1,178 @@
+"""Detection under a deadline at no per-frame cost: the detector runs in the calling thread, and
+only a frame that stalls it moves detection to a child process for a while.
+
+Handing every frame to a child process (:class:`~zenoh_perception.service.watchdog.
+IsolatedDetector`) bounds every frame but costs each one two process wake-ups. Stalls are rare
+(a checkerboard, a tiled floor), so :class:`GuardedDetector` reads frames in the calling thread
+(the service's worker) and a watchdog thread calls :meth:`GuardedDetector.check`:
+
+- A read still running after ``deadline_s`` is abandoned: ``check`` returns its time, the
+  watchdog starts another worker, and the stuck thread, lowered to the weakest scheduling
+  priority, finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
+  results are dropped, it touches nothing else) and ends. A fresh detector serves the next
+  in-process read, so a detector's state between frames starts afresh, as after a restart.
+- While an abandoned read is still running, and for ``calm_s`` after the last abandoned frame,
+  frames go to the child process instead, where a stalled frame is killed at the deadline: a
+  board that stays in view never leaves more than one thread stuck in OpenCV.
+
+No Zenoh, no logging.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from contextlib import suppress
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.errors import FrameAbandonedError
+from zenoh_perception.service.watchdog import DetectorFactory, IsolatedDetector
+
+#: After the last abandoned frame, seconds during which frames still go to the child.
+CALM_S: Final = 5.0
+#: Longest sleep of the watchdog while no read is in flight, seconds: a read that starts
+#: meanwhile is looked at no later than this, then exactly at its deadline.
+_IDLE_POLL_S: Final = 0.1
+#: The nice value an abandoned thread is lowered to (Linux threads each have their own).
+_LOWEST_PRIORITY: Final = 19
+
+
+class StaleDetection(Exception):  # noqa: N818 - not an error: the thread was replaced
+    """Raised in the thread whose read the watchdog abandoned, once OpenCV returns: another
+    thread has taken over, so this one must end without using the results."""
+
+
+@dataclass
+class _Read:
+    """One in-process read in flight."""
+
+    started: float  # time.monotonic()
+    thread: int  # threading.get_ident()
+    native_id: int
+    abandoned: bool = False
+
+
+class GuardedDetector:
+    """A detector built by ``factory``, read in the calling thread and guarded by
+    :meth:`check`; see the module documentation. One worker thread calls :meth:`detect` at a
+    time (a new one only once the previous one's read was abandoned).
+
+    Raises (from :meth:`detect`):
+        StaleDetection: this thread's read was abandoned; the thread must end.
+        FrameAbandonedError, ProcessingError: from the child process, while it reads.
+    """
+
+    def __init__(
+        self,
+        factory: DetectorFactory,
+        deadline_s: float,
+        *,
+        stop: threading.Event | None = None,
+        calm_s: float = CALM_S,
+    ) -> None:
+        self.deadline_s = deadline_s
+        self.calm_s = calm_s
+        self._factory = factory
+        self._local: Detector = factory()
+        self.isolated = IsolatedDetector(factory, deadline_s, stop=stop)
+        self._lock = threading.Lock()
+        self._read: _Read | None = None
+        self._stuck = 0  # abandoned reads still inside the detector
+        self._calm_at = 0.0  # monotonic time from which frames may be read in process again
+
+    def start(self) -> None:
+        """Start the child process and its spare, ready for the first stall."""
+        self.isolated.start()
+
+    def close(self) -> None:
+        self.isolated.close()
+
+    @property
+    def in_child(self) -> bool:
+        """Whether the next frame goes to the child process."""
+        return self._stuck > 0 or time.monotonic() < self._calm_at
+
+    @property
+    def reading(self) -> bool:
+        """Whether a read is in flight in this process (not abandoned)."""
+        return self._read is not None
+
+    @property
+    def stuck(self) -> int:
+        """Abandoned reads still running in this process."""
+        return self._stuck
+
+    def gray_buffer(self, height: int, width: int) -> npt.NDArray[np.uint8] | None:
+        """Where the next frame's grey image goes: the child's segment while frames go to the
+        child, else None (any array)."""
+        return self.isolated.gray_buffer(height, width) if self.in_child else None
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        if self.in_child:
+            try:
+                return self.isolated.detect(gray)
+            except FrameAbandonedError:
+                self._calm_at = time.monotonic() + self.calm_s
+                raise
+        read = _Read(time.monotonic(), threading.get_ident(), threading.get_native_id())
+        detector = self._local
+        with self._lock:
+            self._read = read
+        try:
+            found = detector.detect(gray)
+        finally:
+            self._finish(read)
+        return found
+
+    def _finish(self, read: _Read) -> None:
+        """End ``read``: raise :class:`StaleDetection` when it was abandoned meanwhile."""
+        with self._lock:
+            if read.abandoned:
+                self._stuck -= 1
+                raise StaleDetection
+            self._read = None
+
+    def check(self) -> float | None:
+        """Abandon the in-process read when it has run past the deadline: its time in ms (the
+        caller starts another worker), else None."""
+        now = time.monotonic()
+        with self._lock:
+            read = self._read
+            if read is None or now - read.started < self.deadline_s:
+                return None
+            read.abandoned = True
+            self._read = None
+            self._stuck += 1
+            self._calm_at = now + self.calm_s
+        with suppress(OSError):  # not permitted or thread gone: it only runs at full priority
+            os.setpriority(os.PRIO_PROCESS, read.native_id, _LOWEST_PRIORITY)
+        # The abandoned detector stays with its thread; a detector keeping state between
+        # frames (tracking) starts afresh, as a restarted child does.
+        self._local = self._factory()
+        return (now - read.started) * 1e3
+
+    def abandon(self) -> int | None:
+        """Abandon the in-process read in flight, whatever its time (on shutdown): the
+        thread's ``threading.get_ident()``, or None when none is in flight."""
+        with self._lock:
+            read = self._read
+            if read is None:
+                return None
+            read.abandoned = True
+            self._read = None
+            self._stuck += 1
+        return read.thread
+
+    def poll_s(self) -> float:
+        """How long the watchdog may sleep before calling :meth:`check` again."""
+        with self._lock:
+            read = self._read
+        if read is None:
+            return min(_IDLE_POLL_S, self.deadline_s)
+        return max(0.001, read.started + self.deadline_s - time.monotonic())
