@@ -99,8 +99,8 @@ class Reading:
 
 def shortest_side(corners: npt.NDArray[np.float32]) -> float:
     """Shortest side of a quad, pixels."""
-    edges = corners[[1, 2, 3, 0]] - corners
-    return float(np.sqrt((edges * edges).sum(axis=1).min()))
+    points = corners.reshape(4, 2).tolist()
+    return min(math.dist(points[i - 1], points[i]) for i in range(4))
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,8 +111,12 @@ class _Layout:
     side_px: int  # the patch's side: the marker, its border and one ring of cells
     target: npt.NDArray[np.float32]  # the marker's corners in the patch
     ring: Mask
-    border: Mask
-    inner: Mask
+    # the own grid's cells of the ring, of the border, inside the border and not in the ring,
+    # as flat indices in row-major order (what indexing with the masks gives, faster)
+    ring_cells: npt.NDArray[np.intp]
+    border_cells: npt.NDArray[np.intp]
+    inner_cells: npt.NDArray[np.intp]
+    marker_cells: npt.NDArray[np.intp]
     own_cores: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]  # own grid, one axis
     corners: npt.NDArray[np.intp]  # (4, cores): the cores' corners, own grid then finer ones
     area: Floats  # pixels of each core
@@ -157,8 +161,10 @@ def _layout(marker_size: int) -> _Layout:
         side,
         target,
         ring,
-        ~ring & ~inner,
-        inner,
+        np.flatnonzero(ring),
+        np.flatnonzero(~ring & ~inner),
+        np.flatnonzero(inner),
+        np.flatnonzero(~ring),
         grids[0],
         np.stack(corners),
         np.concatenate(areas),
@@ -171,16 +177,11 @@ def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
     """Mean and standard deviation of every cell core of every grid, in ``layout.corners``'
     order, from the patch's integral images."""
     sums, squares = cv2.integral2(patch, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
-
-    def box(table: Floats) -> Floats:
-        flat = table.ravel()
-        hh, lh, hl, ll = (flat[index] for index in layout.corners)
-        return np.asarray(hh - lh - hl + ll)
-
-    mean = box(np.asarray(sums, np.float64)) / layout.area
-    spread = np.sqrt(
-        np.maximum(box(np.asarray(squares, np.float64)) / layout.area - mean * mean, 0.0)
-    )
+    # each table's four corners of every core in one gather: (4, cores)
+    s = np.asarray(sums, np.float64).ravel()[layout.corners]
+    q = np.asarray(squares, np.float64).ravel()[layout.corners]
+    mean = (s[0] - s[1] - s[2] + s[3]) / layout.area
+    spread = np.sqrt(np.maximum((q[0] - q[1] - q[2] + q[3]) / layout.area - mean * mean, 0.0))
     return mean, spread
 
 
@@ -197,6 +198,8 @@ def _inside(gray: Gray, back: Floats, layout: _Layout) -> Mask:
     homography from the patch to the image)."""
     height, width = gray.shape[:2]
     edge = float(layout.side_px - 1)
+    if _well_inside(back, edge, width, height):
+        return np.ones(layout.ring.shape, bool)
     outline = cv2.perspectiveTransform(
         np.array([[[0, 0]], [[edge, 0]], [[edge, edge]], [[0, edge]]], np.float32), back
     )
@@ -216,6 +219,28 @@ def _inside(gray: Gray, back: Floats, layout: _Layout) -> Mask:
     return np.asarray(ok.all(axis=(1, 3)), bool)
 
 
+#: How far inside the image the patch's outline must map for :func:`_well_inside` to say so
+#: without OpenCV's float32 points, pixels: far more than their rounding.
+_INSIDE_MARGIN_PX: Final = 0.01
+
+
+def _well_inside(back: Floats, edge: float, width: int, height: int) -> bool:
+    """Whether the patch's four corners (0 and ``edge`` on each axis) map through ``back``
+    clearly inside the image: the common case, told without OpenCV (plain arithmetic on the
+    3 x 3 matrix). False means "look closer", not "outside"."""
+    (a, b, c), (d, e, f), (g, h, k) = back.tolist()
+    low_x, low_y = _INSIDE_MARGIN_PX, _INSIDE_MARGIN_PX
+    high_x, high_y = width - 1 - _INSIDE_MARGIN_PX, height - 1 - _INSIDE_MARGIN_PX
+    for x, y in ((0.0, 0.0), (edge, 0.0), (edge, edge), (0.0, edge)):
+        w = g * x + h * y + k
+        if abs(w) < 1e-9:
+            return False
+        u, v = (a * x + b * y + c) / w, (d * x + e * y + f) / w
+        if not (low_x <= u <= high_x and low_y <= v <= high_y):
+            return False
+    return True
+
+
 def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
     side, as a :class:`Reading`."""
@@ -224,21 +249,27 @@ def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -
     patch = np.asarray(cv2.warpPerspective(gray, warp, (layout.side_px, layout.side_px)), np.uint8)
     means, spreads = _cell_stats(patch, layout)
     cells = layout.ring.shape[0]
-    grid = means[: cells * cells].reshape(cells, cells)
-    spread = spreads[: cells * cells].reshape(cells, cells)
-    dark = _median(grid[layout.border])
-    code = grid[layout.inner]
+    grid = means[: cells * cells]  # the own grid's cells, row by row
+    dark = _median(grid[layout.border_cells])
+    code = grid[layout.inner_cells]
     # white cells: the inner cells above the midpoint between the border and the lightest cell
     split = (dark + float(code.max())) / 2.0
-    light = _median(code[code > split]) if (code > split).any() else dark
+    whites = code[code > split]
+    light = _median(whites) if whites.size else dark
     contrast = light - dark
     scale = max(contrast, 1.0)
     levels = (grid - dark) / scale
-    back = cv2.getPerspectiveTransform(layout.target, np.asarray(corners, np.float32))
-    quiet_cells = levels[layout.ring & _inside(gray, np.asarray(back), layout)]
+    back = np.asarray(
+        cv2.getPerspectiveTransform(layout.target, np.asarray(corners, np.float32)), np.float64
+    )
+    inside = _inside(gray, back, layout).ravel()
+    ring = layout.ring_cells
+    quiet_cells = levels[ring if inside.all() else ring[inside[ring]]]
     quiet = _median(quiet_cells) if quiet_cells.size else 1.0
-    border_light = float(np.mean(levels[layout.border] > 0.5))
-    own = float(spread[~layout.ring].mean())
+    border = levels[layout.border_cells]
+    border_light = np.count_nonzero(border > 0.5) / border.size
+    marker = spreads[layout.marker_cells]
+    own = float(np.add.reduce(marker)) / marker.size
     finer = spreads[cells * cells :]
     if finer.size:
         means_per_grid = np.add.reduceat(finer, layout.finer_starts) / layout.finer_cells
@@ -246,7 +277,7 @@ def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -
     else:
         least = own
     grid_ratio = own / max(least, 1e-3)
-    inner = np.clip(levels[layout.inner], 0.0, 1.0).astype(np.float32)
+    inner = np.minimum(np.maximum(levels[layout.inner_cells], 0.0), 1.0).astype(np.float32)
     return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio, inner)
 
 
