@@ -1,7 +1,9 @@
 """The service's ROS 2 outputs beside ``tag``: every detection (AprilTagDetectionArray) and the
 tags' transforms (TFMessage), each an entry of the topic table
 (:data:`~zenoh_perception.wire.ros_topics.ROS_TOPICS`) declared through the ROS transport
-(plain key or rmw_zenoh), and only when its key setting is set."""
+(plain key or rmw_zenoh), and only when its key setting is set. A frame's payload is encoded
+only for the outputs a subscriber matches at the time (a CDR encoding costs more than the rest
+of the frame's publications together)."""
 
 from __future__ import annotations
 
@@ -50,8 +52,9 @@ class RosOutputs:
     def encode(
         self, analysis: Analysis, *, stamp_ns: int, frame_id: str
     ) -> tuple[list[Encoded], list[ProcessingError]]:
-        """Each declared output's payload for this frame (TF only when a tag has a pose), and
-        the outputs that failed to encode (stage ``encode_<name>``)."""
+        """Each declared output's payload for this frame (TF only when a tag has a pose; none
+        for an output no subscriber matches), and the outputs that failed to encode (stage
+        ``encode_<name>``)."""
         encoders: dict[str, Callable[[], memoryview | None]] = {
             DETECTIONS_TOPIC.role: lambda: encode_detections(
                 analysis.tags,
@@ -66,6 +69,8 @@ class RosOutputs:
         encoded: list[Encoded] = []
         failed: list[ProcessingError] = []
         for name, publisher in self._publishers.items():
+            if not publisher.matched:
+                continue  # nobody subscribes: neither encoded nor put
             try:
                 payload = encoders[name]()
             except _ENCODE_ERRORS as err:

@@ -62,6 +62,13 @@ class TopicPublisher:
         attachment = Attachment(self._seq, time.time_ns(), self._gid).encode()
         self._publisher.put(payload, attachment=attachment)
 
+    @property
+    def matched(self) -> bool:
+        """Whether a subscriber matches the key now (a Zenoh routing-table look-up)."""
+        status = self._publisher.matching_status
+        # zenoh-python returns a MatchingStatus (its stubs say a bool): read either
+        return bool(getattr(status, "matching", status))
+
     def declare_matching_listener(
         self, callback: Callable[[zenoh.MatchingStatus], Any]
     ) -> zenoh.MatchingListener[Any]:
