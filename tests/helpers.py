@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pytest
 import zenoh
 
 from zenoh_perception.bench._loopback import free_port, loopback_config, loopback_endpoint
@@ -125,6 +126,18 @@ def wait_for_status(
 def cli_command(*args: str) -> list[str]:
     """The real ``zenoh-perception`` CLI, run with this interpreter."""
     return [sys.executable, "-m", "zenoh_perception", *args]
+
+
+def sigterm_exit(proc: subprocess.Popen[str], timeout: float = 10.0) -> tuple[int, float]:
+    """SIGTERM ``proc`` and wait for it: its exit code and the seconds the exit took (the
+    test fails when it does not exit within ``timeout``)."""
+    started = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    try:
+        code = proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"no exit within {timeout:g} s of SIGTERM")
+    return code, time.monotonic() - started
 
 
 @contextmanager

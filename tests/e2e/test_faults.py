@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import logging
 import queue
-import signal
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -37,6 +35,7 @@ from tests.helpers import (
     open_session,
     query_status,
     running_cli,
+    sigterm_exit,
     wait_for_status,
     wait_for_subscriber,
     wait_until,
@@ -298,13 +297,7 @@ def test_sigterm_during_an_hd2k_stream_exits_0_within_2_seconds(router: Router) 
                 timeout=60.0,
                 what="the service processing and dropping frames",
             )
-            started = time.monotonic()
-            proc.send_signal(signal.SIGTERM)
-            try:
-                code = proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                pytest.fail("no exit within 10 s of SIGTERM")
-            elapsed = time.monotonic() - started
+            code, elapsed = sigterm_exit(proc)
         finally:
             stream.stop()
         output = proc.stdout.read() if proc.stdout is not None else ""

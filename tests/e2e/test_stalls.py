@@ -8,9 +8,6 @@ a frame still exits at once.
 
 from __future__ import annotations
 
-import signal
-import subprocess
-import time
 from collections.abc import Iterator
 
 import numpy as np
@@ -25,6 +22,7 @@ from tests.helpers import (
     open_session,
     query_status,
     running_cli,
+    sigterm_exit,
     wait_for_status,
     wait_for_subscriber,
     wait_until,
@@ -136,13 +134,7 @@ def test_sigterm_during_a_stalled_frame_exits_promptly(
         publisher = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
         wait_for_subscriber(publisher)
         _put_board(publisher, camera, (4096, 4096, 32))
-        started = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(timeout=10.0)
-        except subprocess.TimeoutExpired:
-            pytest.fail("no exit within 10 s of SIGTERM")
-        elapsed = time.monotonic() - started
+        code, elapsed = sigterm_exit(proc)
         output = proc.stdout.read() if proc.stdout is not None else ""
     assert code == 0, output
     # A worker thread inside OpenCV is not waited for; nor is a child, which is killed.
@@ -165,13 +157,7 @@ def test_sigterm_while_an_abandoned_thread_still_runs_exits_promptly(
         good = marker_frame(1280, 720, 7, side=160)
         publisher.put(good.payload, attachment=raw_attachment(1280, 720, seq=2))
         assert decode_record(records.get(timeout=10.0).payload)["seq"] == 2
-        started = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        try:
-            code = proc.wait(timeout=10.0)
-        except subprocess.TimeoutExpired:
-            pytest.fail("no exit within 10 s of SIGTERM")
-        elapsed = time.monotonic() - started
+        code, elapsed = sigterm_exit(proc)
         output = proc.stdout.read() if proc.stdout is not None else ""
     assert code == 0, output
     assert elapsed < 1.5, f"exit took {elapsed:.2f} s"
