@@ -12,7 +12,15 @@ import pytest
 
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import REASONS, Verifier, decision_margin, dictionary_codes
+from zenoh_perception.detect.verify import (
+    GRID_SIZES,
+    REASONS,
+    Verifier,
+    _cell_stats,
+    _layout,
+    decision_margin,
+    dictionary_codes,
+)
 from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
@@ -245,3 +253,19 @@ def test_a_vetoed_detection_is_read_again_on_the_next_frame() -> None:
     verifier = Verifier("DICT_4X4_50")
     assert found and verifier.verify(grey, found)[0] == []
     assert verifier.verify(grey, found)[0] == []  # a veto is never remembered as a keep
+
+
+@pytest.mark.parametrize("marker_size", GRID_SIZES)
+def test_the_cells_statistics_are_exact_up_to_an_all_white_patch(marker_size: int) -> None:
+    # the pixels' sums are taken in float32: exact only while they stay below 2**24
+    layout = _layout(marker_size)
+    rng = np.random.default_rng(marker_size)
+    shape = (layout.side_px, layout.side_px)
+    for patch in (np.full(shape, 255, np.uint8), rng.integers(0, 256, shape, dtype=np.uint8)):
+        sums, squares = cv2.integral2(patch, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
+        s, q = sums.ravel()[layout.corners], squares.ravel()[layout.corners]
+        mean = (s[0] - s[1] - s[2] + s[3]) / layout.area
+        spread = np.sqrt(np.maximum((q[0] - q[1] - q[2] + q[3]) / layout.area - mean**2, 0.0))
+        got_mean, got_spread = _cell_stats(patch, layout)
+        assert np.array_equal(got_mean, mean)
+        assert np.array_equal(got_spread, spread)

@@ -45,6 +45,7 @@ detections of the project's real corpus that set the thresholds, and what each r
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import Final
@@ -56,11 +57,12 @@ import numpy.typing as npt
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.regions import seen_again
 from zenoh_perception.detect.types import Detection, dictionary_names
-from zenoh_perception.tags.geometry import mean_side
 
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
 Floats = npt.NDArray[np.float64]
+Cells = npt.NDArray[np.intp]
+Matrix = Sequence[Sequence[float]]  # a 3 x 3 matrix, row by row
 
 #: The veto reasons, in the order they are checked.
 REASONS: Final = ("resolution", "quiet_zone", "border", "grid", "margin")
@@ -99,8 +101,18 @@ class Reading:
 
 def shortest_side(corners: npt.NDArray[np.float32]) -> float:
     """Shortest side of a quad, pixels."""
-    points = corners.reshape(4, 2).tolist()
-    return min(math.dist(points[i - 1], points[i]) for i in range(4))
+    return min(_sides(corners))
+
+
+def _sides(corners: npt.NDArray[np.float32]) -> list[float]:
+    """A quad's four sides, pixels, from the first corner to the second on."""
+    first, second, third, fourth = corners.reshape(4, 2).tolist()
+    return [
+        math.dist(first, second),
+        math.dist(second, third),
+        math.dist(third, fourth),
+        math.dist(fourth, first),
+    ]
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,7 +133,7 @@ class _Layout:
     corners: npt.NDArray[np.intp]  # (4, cores): the cores' corners, own grid then finer ones
     area: Floats  # pixels of each core
     finer_starts: npt.NDArray[np.intp]  # where each finer grid's cores start after the own's
-    finer_cells: npt.NDArray[np.intp]  # how many cores each finer grid has
+    finer_cells: tuple[int, ...]  # how many cores each finer grid has
 
 
 def _cores(start: int, stop: int, cells: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
@@ -156,7 +168,7 @@ def _layout(marker_size: int) -> _Layout:
         for k, (rows, cols) in enumerate(((high, high), (low, high), (high, low), (low, low))):
             corners[k] = np.concatenate([corners[k], (rows[:, None] * stride + cols).ravel()])
         areas.append(np.outer(high - low, high - low).ravel().astype(np.float64))
-    finer_cells = np.asarray([low.size**2 for low, _ in grids[1:]], np.intp)
+    finer_cells = [low.size**2 for low, _ in grids[1:]]
     return _Layout(
         side,
         target,
@@ -168,38 +180,49 @@ def _layout(marker_size: int) -> _Layout:
         grids[0],
         np.stack(corners),
         np.concatenate(areas),
-        np.cumsum(finer_cells) - finer_cells,
-        finer_cells,
+        np.cumsum([0, *finer_cells], dtype=np.intp)[:-1],
+        tuple(finer_cells),
     )
+
+
+#: How each of a core's four corners in ``_Layout.corners`` counts in its sum over an integral
+#: image (bottom-right, top-right, bottom-left, top-left).
+_CORNER_SIGNS: Final = (
+    np.array([1.0, -1.0, -1.0, 1.0], np.float32),
+    np.array([1.0, -1.0, -1.0, 1.0], np.float64),
+)
 
 
 def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
     """Mean and standard deviation of every cell core of every grid, in ``layout.corners``'
     order, from the patch's integral images."""
-    sums, squares = cv2.integral2(patch, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
-    # each table's four corners of every core in one gather: (4, cores)
-    s = np.asarray(sums, np.float64).ravel()[layout.corners]
-    q = np.asarray(squares, np.float64).ravel()[layout.corners]
-    mean = (s[0] - s[1] - s[2] + s[3]) / layout.area
-    spread = np.sqrt(np.maximum((q[0] - q[1] - q[2] + q[3]) / layout.area - mean * mean, 0.0))
-    return mean, spread
+    # Every sum here is a whole number. The pixels' (at most 255 a pixel over the patch,
+    # twice that while a core's four corners are added) stays below 2**24 on the layouts'
+    # patches, so float32, which OpenCV fills faster, holds it exactly; the squares' needs
+    # float64. Exact sums: the tables' types change no result.
+    sums, squares = cv2.integral2(patch, sdepth=cv2.CV_32F, sqdepth=cv2.CV_64F)
+    signs32, signs64 = _CORNER_SIGNS
+    # each table's four corners of every core in one gather: (4, cores), then summed by sign
+    s = signs32 @ np.asarray(sums, np.float32).ravel()[layout.corners]
+    q = signs64 @ np.asarray(squares, np.float64).ravel()[layout.corners]
+    mean = s / layout.area  # in float64: the area's type
+    variance = q / layout.area
+    variance -= mean * mean
+    return mean, np.sqrt(np.maximum(variance, 0.0, out=variance), out=variance)
 
 
-def _median(values: Floats) -> float:
-    ordered = np.sort(values, axis=None)
-    middle = ordered.size // 2
-    return float(
-        ordered[middle] if ordered.size % 2 else (ordered[middle - 1] + ordered[middle]) / 2
-    )
+def _median(values: list[float]) -> float:
+    ordered = sorted(values)
+    middle = len(ordered) // 2
+    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
 
 
 def _inside(gray: Gray, back: Floats, layout: _Layout) -> Mask:
     """Which cells of the own grid have their central part inside the image (``back``: the
-    homography from the patch to the image)."""
+    homography from the patch to the image), told with OpenCV's float32 points: the close look
+    where :func:`_well_inside` cannot tell."""
     height, width = gray.shape[:2]
     edge = float(layout.side_px - 1)
-    if _well_inside(back, edge, width, height):
-        return np.ones(layout.ring.shape, bool)
     outline = cv2.perspectiveTransform(
         np.array([[[0, 0]], [[edge, 0]], [[edge, edge]], [[0, edge]]], np.float32), back
     )
@@ -220,15 +243,16 @@ def _inside(gray: Gray, back: Floats, layout: _Layout) -> Mask:
 
 
 #: How far inside the image the patch's outline must map for :func:`_well_inside` to say so
-#: without OpenCV's float32 points, pixels: far more than their rounding.
+#: without OpenCV's float32 points, pixels: far more than their rounding, and than that of the
+#: inverse homography :func:`_inverse` computes.
 _INSIDE_MARGIN_PX: Final = 0.01
 
 
-def _well_inside(back: Floats, edge: float, width: int, height: int) -> bool:
+def _well_inside(back: Matrix, edge: float, width: int, height: int) -> bool:
     """Whether the patch's four corners (0 and ``edge`` on each axis) map through ``back``
     clearly inside the image: the common case, told without OpenCV (plain arithmetic on the
     3 x 3 matrix). False means "look closer", not "outside"."""
-    (a, b, c), (d, e, f), (g, h, k) = back.tolist()
+    (a, b, c), (d, e, f), (g, h, k) = back
     low_x, low_y = _INSIDE_MARGIN_PX, _INSIDE_MARGIN_PX
     high_x, high_y = width - 1 - _INSIDE_MARGIN_PX, height - 1 - _INSIDE_MARGIN_PX
     for x, y in ((0.0, 0.0), (edge, 0.0), (edge, edge), (0.0, edge)):
@@ -241,44 +265,78 @@ def _well_inside(back: Floats, edge: float, width: int, height: int) -> bool:
     return True
 
 
+def _inverse(matrix: Floats) -> Matrix | None:
+    """The inverse of the 3 x 3 ``matrix`` scaled to 1 at the bottom right (the form
+    ``cv2.getPerspectiveTransform`` gives), in plain arithmetic; None when that entry is 0."""
+    (a, b, c), (d, e, f), (g, h, k) = matrix.tolist()
+    # the adjugate (the inverse up to the determinant) over its bottom-right entry
+    scale = a * e - b * d
+    if scale == 0.0:
+        return None
+    return (
+        ((e * k - f * h) / scale, (c * h - b * k) / scale, (b * f - c * e) / scale),
+        ((f * g - d * k) / scale, (a * k - c * g) / scale, (c * d - a * f) / scale),
+        ((d * h - e * g) / scale, (b * g - a * h) / scale, 1.0),
+    )
+
+
+def _ring_inside(gray: Gray, quad: npt.NDArray[np.float32], warp: Floats, layout: _Layout) -> Cells:
+    """The own grid's ring cells (flat indices) whose central part is inside the image
+    (``warp``: the homography from the image to the patch of the marker at ``quad``)."""
+    back = _inverse(warp)
+    # this inverse differs from OpenCV's homography by rounding, far below _well_inside's
+    # margin: when it tells "well inside", OpenCV's would have told so too
+    if back is not None and _well_inside(back, layout.side_px - 1.0, gray.shape[1], gray.shape[0]):
+        return layout.ring_cells
+    exact = np.asarray(cv2.getPerspectiveTransform(layout.target, quad), np.float64)
+    inside = _inside(gray, exact, layout).ravel()
+    return layout.ring_cells[inside[layout.ring_cells]]
+
+
 def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
     side, as a :class:`Reading`."""
+    return _read_cells(gray, corners, marker_size, sum(_sides(corners)) / 4)
+
+
+def _read_cells(
+    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int, side_px: float
+) -> Reading:
+    """:func:`read_cells`, the quad's mean side (``side_px``) given."""
     layout = _layout(marker_size)
-    warp = cv2.getPerspectiveTransform(np.asarray(corners, np.float32), layout.target)
+    quad = np.asarray(corners, np.float32)
+    warp = np.asarray(cv2.getPerspectiveTransform(quad, layout.target), np.float64)
     patch = np.asarray(cv2.warpPerspective(gray, warp, (layout.side_px, layout.side_px)), np.uint8)
     means, spreads = _cell_stats(patch, layout)
     cells = layout.ring.shape[0]
     grid = means[: cells * cells]  # the own grid's cells, row by row
-    dark = _median(grid[layout.border_cells])
+    # A few dozen values each: plain Python floats from here on, but for the inner cells'
+    # levels; a level is (mean - dark) / scale, the same arithmetic as numpy's on arrays.
+    border = grid[layout.border_cells].tolist()
+    dark = _median(border)
     code = grid[layout.inner_cells]
+    values = code.tolist()
     # white cells: the inner cells above the midpoint between the border and the lightest cell
-    split = (dark + float(code.max())) / 2.0
-    whites = code[code > split]
-    light = _median(whites) if whites.size else dark
+    split = (dark + max(values)) / 2.0
+    whites = [value for value in values if value > split]
+    light = _median(whites) if whites else dark
     contrast = light - dark
     scale = max(contrast, 1.0)
-    levels = (grid - dark) / scale
-    back = np.asarray(
-        cv2.getPerspectiveTransform(layout.target, np.asarray(corners, np.float32)), np.float64
-    )
-    inside = _inside(gray, back, layout).ravel()
-    ring = layout.ring_cells
-    quiet_cells = levels[ring if inside.all() else ring[inside[ring]]]
-    quiet = _median(quiet_cells) if quiet_cells.size else 1.0
-    border = levels[layout.border_cells]
-    border_light = np.count_nonzero(border > 0.5) / border.size
+    ring = grid[_ring_inside(gray, quad, warp, layout)].tolist()
+    quiet = _median([(value - dark) / scale for value in ring]) if ring else 1.0
+    border_light = len([value for value in border if (value - dark) / scale > 0.5]) / len(border)
     marker = spreads[layout.marker_cells]
     own = float(np.add.reduce(marker)) / marker.size
     finer = spreads[cells * cells :]
     if finer.size:
-        means_per_grid = np.add.reduceat(finer, layout.finer_starts) / layout.finer_cells
-        least = float(means_per_grid.min())
+        totals = np.add.reduceat(finer, layout.finer_starts).tolist()
+        least = min(total / count for total, count in zip(totals, layout.finer_cells, strict=True))
     else:
         least = own
     grid_ratio = own / max(least, 1e-3)
-    inner = np.minimum(np.maximum(levels[layout.inner_cells], 0.0), 1.0).astype(np.float32)
-    return Reading(mean_side(corners), quiet, contrast, border_light, grid_ratio, inner)
+    levels = (code - dark) / scale
+    inner = np.minimum(np.maximum(levels, 0.0, out=levels), 1.0, out=levels).astype(np.float32)
+    return Reading(side_px, quiet, contrast, border_light, grid_ratio, inner)
 
 
 Bits = npt.NDArray[np.float32]
@@ -362,9 +420,10 @@ class Verifier:
         """Why ``detection`` is vetoed, or None when it is kept."""
         name = detection.dictionary if detection.dictionary in self._sizes else self._first
         size = self._sizes[name]
-        if shortest_side(detection.corners) < MIN_PX_PER_CELL * (size + 2):
+        sides = _sides(detection.corners)
+        if min(sides) < MIN_PX_PER_CELL * (size + 2):
             return "resolution"
-        reading = read_cells(gray, detection.corners, size)
+        reading = _read_cells(gray, detection.corners, size, sum(sides) / 4)
         reason = veto_reason(reading)
         if reason is not None:
             return reason
