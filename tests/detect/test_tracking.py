@@ -187,3 +187,16 @@ def test_a_large_marker_is_followed_in_a_region_read_at_a_smaller_scale() -> Non
 def test_config_bounds(config: dict[str, float]) -> None:
     with pytest.raises(SettingsError):
         TrackingConfig(**config)  # type: ignore[arg-type]
+
+
+def test_a_scene_cut_forgets_where_the_markers_were() -> None:
+    tagged = gray(render_markers(W, H, [(3, square(100, 100, 80))], background=40))
+    other = gray(render_markers(W, H, [], background=220))  # another scene, no marker
+    tracking = TrackingDetector("DICT_4X4_50", TrackingConfig(full_scan_period=100))
+    assert ids(tracking.detect(tagged)) == Counter({3: 1})
+    assert tracking.detect(other) == []
+    assert tracking.counters["scene_cuts"] == 1
+    # nothing is left to follow or coast: the still scene is not read again
+    assert tracking.detect(other) == []
+    assert tracking.counters["still_skips"] == 1
+    assert tracking.counters["scans"] == 2

@@ -3,10 +3,11 @@
 Every marker this detector reports was decided by ``cv2.aruco.ArucoDetector`` with OpenCV's
 default parameters, on the whole frame (a *scan*) or on a region of it (*following*). What it
 adds is the choice of where to look. Each frame is first compared with the previous one on a
-thumbnail (one pixel per 16 x 16 block), and:
+thumbnail (one pixel per 16 x 16 block, the mean of 16 of its pixels), and:
 
 - the whole frame is scanned on the first frame; on a scene cut (the thumbnail differs by more
-  than ``scene_cut_level`` grey levels on average, so independent frames are each scanned);
+  than ``scene_cut_level`` grey levels on average, so independent frames are each scanned,
+  and the markers of the scene before are forgotten);
   when no known marker was in view on the previous frame; when a block away from the known
   markers changed by more than ``appear_level`` (something appeared there); when a followed
   marker is not found again where it was expected (it moved farther than its region, was
@@ -50,6 +51,8 @@ Change = npt.NDArray[np.int16]
 
 #: Side of the blocks of the thumbnail that tells scene cuts, appearances and still scenes.
 BLOCK: Final = 16
+#: The thumbnail's block means are taken over every SAMPLE-th pixel of every SAMPLE-th row.
+SAMPLE: Final = 4
 #: Scale of the glimpse: the frame read at 1/GLIMPSE of its size between scans.
 GLIMPSE: Final = 4
 #: Smallest marker the glimpse looks for, side in full-resolution pixels: smaller ones have too
@@ -134,7 +137,6 @@ class TrackingDetector:
         self._opencv = OpenCvDetector(dictionary)
         self._tracks: list[_Track] = []
         self._thumb: Change | None = None
-        self._small: Gray = np.zeros((1, 1), np.uint8)
         self._since_scan = 0
         self.counters: dict[str, int] = dict.fromkeys(
             (
@@ -155,12 +157,12 @@ class TrackingDetector:
         self.counters["frames"] += 1
         self._since_scan += 1
         height, width = gray.shape[:2]
-        with single_threaded():
-            change = self._change(gray)
+        change = self._change(gray)
         if change is None:
             return self._scan(gray)
         if float(change.mean()) > self.config.scene_cut_level:
             self.counters["scene_cuts"] += 1
+            self._tracks = []  # another scene: where its markers were says nothing now
             return self._scan(gray)
         if self._since_scan >= self.config.full_scan_period:
             return self._scan(gray)
@@ -173,7 +175,7 @@ class TrackingDetector:
             self.counters["appearances"] += 1
             return self._scan(gray)
         with single_threaded():
-            glimpsed = self.config.glimpse and self._glimpsed()
+            glimpsed = self.config.glimpse and self._glimpsed(gray)
             found = None if glimpsed else self._follow(gray)
         if glimpsed:
             self.counters["glimpses"] += 1
@@ -192,17 +194,16 @@ class TrackingDetector:
 
     def _change(self, gray: Gray) -> Change | None:
         """Absolute change of each block's mean grey level since the previous frame (None:
-        no previous frame of this size). Keeps the frame at a quarter of its size for
-        :meth:`_glimpsed`."""
+        no previous frame of this size).
+
+        The means are taken over every 4th pixel of every 4th row (16 of a block's 256): a
+        sixth of the cost of averaging every pixel, within a grey level of it, and far below
+        the levels the decisions use. Every frame pays for it, a scanned one too.
+        """
         height, width = gray.shape[:2]
-        # halved twice: OpenCV's area resize is several times faster for a factor of 2
-        small: Gray = gray
-        for factor in (2, GLIMPSE):
-            size = (max(1, width // factor), max(1, height // factor))
-            small = np.asarray(cv2.resize(small, size, interpolation=cv2.INTER_AREA), np.uint8)
-        self._small = small
+        sampled = np.ascontiguousarray(gray[SAMPLE // 2 :: SAMPLE, SAMPLE // 2 :: SAMPLE])
         size = (max(1, width // BLOCK), max(1, height // BLOCK))
-        thumb = cv2.resize(self._small, size, interpolation=cv2.INTER_AREA).astype(np.int16)
+        thumb = cv2.resize(sampled, size, interpolation=cv2.INTER_AREA).astype(np.int16)
         previous, self._thumb = self._thumb, thumb
         if previous is None or previous.shape != thumb.shape:
             self._tracks = []
@@ -220,11 +221,17 @@ class TrackingDetector:
             changed[y0 // BLOCK : -(-y1 // BLOCK), x0 // BLOCK : -(-x1 // BLOCK)] = False
         return bool(changed.any())
 
-    def _glimpsed(self) -> bool:
+    def _glimpsed(self, gray: Gray) -> bool:
         """Whether OpenCV's detector reads, on the frame at a quarter of its size, a marker
         that no known one explains (a large marker turning into view or coming into focus)."""
+        height, width = gray.shape[:2]
+        # halved twice: OpenCV's area resize is several times faster for a factor of 2
+        small: Gray = gray
+        for factor in (2, GLIMPSE):
+            size = (max(1, width // factor), max(1, height // factor))
+            small = np.asarray(cv2.resize(small, size, interpolation=cv2.INTER_AREA), np.uint8)
         smallest = 4.0 * GLIMPSE_MIN_SIDE_PX / GLIMPSE
-        for found in self._opencv.detect(self._small, min_perimeter_px=smallest):
+        for found in self._opencv.detect(small, min_perimeter_px=smallest):
             centre = _centre(found.corners) * GLIMPSE + (GLIMPSE - 1) / 2
             if not any(
                 track.tag_id == found.tag_id
@@ -292,6 +299,9 @@ class TrackingDetector:
 
 def _nearest(track: _Track, candidates: list[Detection]) -> Detection | None:
     """The candidate with the track's id nearest its predicted centre, if within reach."""
+    same_id = [c for c in candidates if c.tag_id == track.tag_id]
+    if not same_id:
+        return None
     expected = _centre(track.predicted())
     reach = (
         max(side(track.corners), 2.0 * MIN_MARGIN_PX)
@@ -299,9 +309,7 @@ def _nearest(track: _Track, candidates: list[Detection]) -> Detection | None:
     )
     best: Detection | None = None
     best_distance = reach
-    for candidate in candidates:
-        if candidate.tag_id != track.tag_id:
-            continue
+    for candidate in same_id:
         distance = float(np.linalg.norm(_centre(candidate.corners) - expected))
         if distance <= best_distance:
             best, best_distance = candidate, distance
