@@ -99,11 +99,6 @@ class Reading:
     levels: npt.NDArray[np.float32]  # the inner cells' levels clipped to [0, 1], row by row
 
 
-def shortest_side(corners: npt.NDArray[np.float32]) -> float:
-    """Shortest side of a quad, pixels."""
-    return min(_sides(corners))
-
-
 def _sides(corners: npt.NDArray[np.float32]) -> list[float]:
     """A quad's four sides, pixels, from the first corner to the second on."""
     first, second, third, fourth = corners.reshape(4, 2).tolist()
@@ -293,16 +288,13 @@ def _ring_inside(gray: Gray, quad: npt.NDArray[np.float32], warp: Floats, layout
     return layout.ring_cells[inside[layout.ring_cells]]
 
 
-def read_cells(gray: Gray, corners: npt.NDArray[np.float32], marker_size: int) -> Reading:
-    """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
-    side, as a :class:`Reading`."""
-    return _read_cells(gray, corners, marker_size, sum(_sides(corners)) / 4)
-
-
-def _read_cells(
-    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int, side_px: float
+def read_cells(
+    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int, side_px: float | None = None
 ) -> Reading:
-    """:func:`read_cells`, the quad's mean side (``side_px``) given."""
+    """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
+    side, as a :class:`Reading` (``side_px``: the quad's mean side, when the caller has it)."""
+    if side_px is None:
+        side_px = sum(_sides(corners)) / 4
     layout = _layout(marker_size)
     quad = np.asarray(corners, np.float32)
     warp = np.asarray(cv2.getPerspectiveTransform(quad, layout.target), np.float64)
@@ -423,7 +415,7 @@ class Verifier:
         sides = _sides(detection.corners)
         if min(sides) < MIN_PX_PER_CELL * (size + 2):
             return "resolution"
-        reading = _read_cells(gray, detection.corners, size, sum(sides) / 4)
+        reading = read_cells(gray, detection.corners, size, sum(sides) / 4)
         reason = veto_reason(reading)
         if reason is not None:
             return reason
