@@ -184,3 +184,11 @@ def test_abandon_gives_the_thread_of_the_read_in_flight(guard: GuardedDetector) 
     RELEASE.set()
     reader.join(5.0)
     assert isinstance(reader.error, StaleDetection)
+
+
+def test_after_abandon_no_read_starts(guard: GuardedDetector) -> None:
+    # on shutdown a worker may still be decoding a frame: it must not go on to read it
+    assert guard.abandon() is None
+    with pytest.raises(StaleDetection):
+        guard.detect(_gray(5))
+    assert not guard.reading

@@ -64,7 +64,8 @@ class GuardedDetector:
     time (a new one only once the previous one's read was abandoned).
 
     Raises (from :meth:`detect`):
-        StaleDetection: this thread's read was abandoned; the thread must end.
+        StaleDetection: this thread's read was abandoned, or :meth:`abandon` was called; the
+            thread must end.
         FrameAbandonedError, ProcessingError: from the child process, while it reads.
     """
 
@@ -85,6 +86,7 @@ class GuardedDetector:
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector
         self._calm_at = 0.0  # monotonic time from which frames may be read in process again
+        self._closing = False  # set by abandon(): no read starts any more
 
     def start(self) -> None:
         """Start the child process and its spare, ready for the first stall."""
@@ -114,6 +116,8 @@ class GuardedDetector:
         return self.isolated.gray_buffer(height, width) if self.in_child else None
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        if self._closing:
+            raise StaleDetection
         if self.in_child:
             try:
                 return self.isolated.detect(gray)
@@ -123,6 +127,8 @@ class GuardedDetector:
         read = _Read(time.monotonic(), threading.get_ident(), threading.get_native_id())
         detector = self._local
         with self._lock:
+            if self._closing:  # abandon() came between the check above and here
+                raise StaleDetection
             self._read = read
         try:
             found = detector.detect(gray)
@@ -158,9 +164,11 @@ class GuardedDetector:
         return (now - read.started) * 1e3
 
     def abandon(self) -> int | None:
-        """Abandon the in-process read in flight, whatever its time (on shutdown): the
-        thread's ``threading.get_ident()``, or None when none is in flight."""
+        """On shutdown: abandon the in-process read in flight, whatever its time, and let no
+        other start (a worker still decoding a frame would otherwise go on to read it, and be
+        waited for). The thread's ``threading.get_ident()``, or None when none is in flight."""
         with self._lock:
+            self._closing = True
             read = self._read
             if read is None:
                 return None
