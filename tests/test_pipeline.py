@@ -10,13 +10,15 @@ import numpy.typing as npt
 import pytest
 
 from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.scene import render_markers
+from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import closeness_from_area
 from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.tags.selection import NO_TAG, Metric
-from zenoh_perception.wire.frames import Frame, RawFrameMeta, decode_raw_frame
+from zenoh_perception.tags.selection import NO_TAG, Metric, Policy, selected_message
+from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta, decode_raw_frame
 
 
 def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:
@@ -170,3 +172,62 @@ def test_tag_finder_filters_by_side_and_times_the_conversion() -> None:
     detections, convert_s = finder.find(_frame([], width=320))
     assert [d.tag_id for d in detections] == [2]
     assert convert_s >= 0.0
+
+
+def test_begin_judges_only_the_selected_tag_and_finish_the_others(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    judged: list[int] = []
+    check = Verifier.check
+
+    def counted(self: Verifier, gray: npt.NDArray[np.uint8], detection: Detection) -> str | None:
+        judged.append(detection.tag_id)
+        return check(self, gray, detection)
+
+    monkeypatch.setattr(Verifier, "check", counted)
+    pipeline = Pipeline(Settings())
+    pending = pipeline.begin(_frame(TWO_TAGS))
+    assert pending.selected.tag_id == 7
+    assert judged == [7]  # the closest, kept: the tag is known before 3 is read
+    analysis = pending.finish()
+    assert sorted(judged) == [3, 7]
+    assert sorted(t.tag_id for t in analysis.tags) == [3, 7]
+    assert analysis.selected == pending.selected
+
+
+def _lookalikes_and_a_tag() -> Frame:
+    """Key-caps OpenCV reads as DICT_4X4_50 ids (about 36 px), larger than the one true 26 px
+    tag 3 pasted on a white patch in the top-left corner."""
+    image = lookalike_frame("keys", "DICT_4X4_50", np.random.default_rng(7))
+    tag = render_markers(640, 480, [(3, _square(20, 20, 26))])
+    image[:70, :70] = tag[:70, :70]
+    return Frame(image, ENCODINGS["bgra8"], None, "test", None)
+
+
+def test_a_vetoed_candidate_hands_the_selection_to_the_next() -> None:
+    unverified = Pipeline(Settings(verify=False)).process(_lookalikes_and_a_tag())
+    # without the veto a look-alike, closer than the tag, would be selected
+    assert unverified.selected.tag_id != 3 and len(unverified.tags) > 1
+    pipeline = Pipeline(Settings())
+    pending = pipeline.begin(_lookalikes_and_a_tag())
+    assert pending.selected.tag_id == 3
+    analysis = pending.finish()
+    assert [t.tag_id for t in analysis.tags] == [3]
+    assert analysis.selected == pending.selected
+    assert sum(pipeline.vetoed.values()) == len(unverified.tags) - 1
+
+
+@pytest.mark.parametrize("policy", ["closest", "center"])
+def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> None:
+    rng = np.random.default_rng(3)
+    settings = Settings(policy=policy)
+    staged, whole = Pipeline(settings), Pipeline(settings)
+    for kind in ("keys", "text", "tiles", "other_family"):
+        frame = Frame(
+            lookalike_frame(kind, "DICT_4X4_50", rng), ENCODINGS["bgra8"], None, "test", None
+        )
+        found, _ = whole._finder.find(frame)  # every detection screened, then selected
+        expected = selected_message(
+            tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
+        )
+        assert staged.begin(frame).selected == expected

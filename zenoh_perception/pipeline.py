@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
@@ -24,13 +25,17 @@ from zenoh_perception.tags.geometry import (
 )
 from zenoh_perception.tags.pose import Intrinsics, estimate_pose
 from zenoh_perception.tags.selection import (
+    NO_TAG,
     Metric,
     Policy,
     TagMessage,
     TagObservation,
     selected_message,
+    selection_key,
 )
-from zenoh_perception.wire.frames import Frame, to_gray
+from zenoh_perception.wire.frames import Frame, Pixels, to_gray
+
+Gray = Pixels
 
 #: Why a detection OpenCV reported is dropped: the verifier's reasons, and a marker not yet
 #: seen on ``confirm_frames`` frames in a row.
@@ -122,6 +127,12 @@ class TagFinder:
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
         """The tags in ``frame``, and the seconds spent converting it to grey first."""
+        gray, detections, convert_s = self.detect(frame)
+        return self.screen(gray, detections), convert_s
+
+    def detect(self, frame: Frame) -> tuple[Gray, list[Detection], float]:
+        """The first steps of :meth:`find`: the grey image, the detector's markers at least
+        ``min_side_px`` a side, and the seconds the conversion took."""
         start = time.perf_counter()
         # a detector in another process offers the buffer it reads from (None: any array), so
         # that the grey image is not copied into it
@@ -131,13 +142,40 @@ class TagFinder:
         detections = self.detector.detect(gray)
         if self._min_side_px > 0.0 and detections:
             detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
+        return gray, detections, converted - start
+
+    def screen(self, gray: Gray, detections: list[Detection]) -> list[Detection]:
+        """The last steps of :meth:`find`: the verifier's vetoes, then the confirmation."""
         if self._verifier is not None and detections:
             detections, reasons = self._verifier.verify(gray, detections)
             self.vetoed.update(reasons)
         if self._confirmer is not None:
             detections, held = self._confirmer.confirm(gray.shape, detections)
             self.vetoed["unconfirmed"] += held
-        return detections, converted - start
+        return detections
+
+    @property
+    def judges_one_by_one(self) -> bool:
+        """Whether each detection can be kept or vetoed on its own (:meth:`judge`): with a
+        verifier and no confirmation, which needs every detection of the frame at once."""
+        return self._verifier is not None and self._confirmer is None
+
+    def judge(self, gray: Gray, detection: Detection) -> str | None:
+        """Why the verifier vetoes ``detection``, or None (only when
+        :attr:`judges_one_by_one`; a frame's detections are judged after :meth:`start`)."""
+        assert self._verifier is not None
+        return self._verifier.judge(gray, detection)
+
+    def start(self, gray: Gray) -> None:
+        """A frame whose detections are judged one by one begins."""
+        assert self._verifier is not None
+        self._verifier.start(gray)
+
+    def commit(self, kept: list[Detection], reasons: list[str]) -> None:
+        """The frame's detections were all judged: those kept, and each veto's reason."""
+        assert self._verifier is not None
+        self._verifier.commit(kept)
+        self.vetoed.update(reasons)
 
 
 def detector_for(settings: Settings) -> Detector:
@@ -195,20 +233,85 @@ class Pipeline:
         return self._finder.vetoed
 
     def process(self, frame: Frame) -> Analysis:
+        return self.begin(frame).finish()
+
+    def begin(self, frame: Frame) -> Pending:
+        """The frame's selected tag, with as little of the verifier's work as that needs:
+        candidates are judged in the order the selection ranks them, up to the first kept;
+        :meth:`Pending.finish` judges the others. The selection is the one :meth:`process`
+        makes."""
         start = time.perf_counter()
-        detections, convert_s = self._finder.find(frame)
-        detected = time.perf_counter()
+        finder = self._finder
+        gray, detections, convert_s = finder.detect(frame)
         width, height = frame.width, frame.height
         intrinsics, size = self._camera
         mismatch = intrinsics is not None and size is not None and size != (width, height)
         if mismatch:
             intrinsics = None
-        tags = tuple(observe(d, width, height, self.settings, intrinsics) for d in detections)
-        selected = selected_message(tags, width, height, self._policy)
-        return Analysis(
-            tags=tags,
-            selected=selected,
-            convert_ms=convert_s * 1e3,
-            detect_ms=(detected - start - convert_s) * 1e3,
-            intrinsics_mismatch=mismatch,
-        )
+
+        def observed(detection: Detection) -> TagObservation:
+            return observe(detection, width, height, self.settings, intrinsics)
+
+        if not (detections and finder.judges_one_by_one):
+            detections = finder.screen(gray, detections)
+            tags = tuple(observed(d) for d in detections)
+            detect_s = time.perf_counter() - start - convert_s
+            analysis = Analysis(
+                tags=tags,
+                selected=selected_message(tags, width, height, self._policy),
+                convert_ms=convert_s * 1e3,
+                detect_ms=detect_s * 1e3,
+                intrinsics_mismatch=mismatch,
+            )
+            return Pending(analysis.selected, mismatch, lambda: analysis)
+        finder.start(gray)
+        observations = [observed(d) for d in detections]
+        rank = selection_key(width, height, self._policy)
+        verdicts: dict[int, str | None] = {}
+        selected = NO_TAG
+        for index in sorted(range(len(detections)), key=lambda i: rank(observations[i])):
+            verdicts[index] = finder.judge(gray, detections[index])
+            if verdicts[index] is None:
+                selected = observations[index].message()
+                break
+        detect_s = time.perf_counter() - start - convert_s
+
+        def finish() -> Analysis:
+            started = time.perf_counter()
+            for index, detection in enumerate(detections):
+                if index not in verdicts:
+                    verdicts[index] = finder.judge(gray, detection)
+            kept = [i for i in range(len(detections)) if verdicts[i] is None]
+            finder.commit(
+                [detections[i] for i in kept],
+                [reason for reason in verdicts.values() if reason is not None],
+            )
+            return Analysis(
+                tags=tuple(observations[i] for i in kept),
+                selected=selected,
+                convert_ms=convert_s * 1e3,
+                detect_ms=(detect_s + time.perf_counter() - started) * 1e3,
+                intrinsics_mismatch=mismatch,
+            )
+
+        return Pending(selected, mismatch, finish)
+
+
+class Pending:
+    """A frame whose selected tag is known (publish it first) and whose other detections are
+    judged by :meth:`finish`, once."""
+
+    __slots__ = ("_finish", "intrinsics_mismatch", "selected")
+
+    def __init__(
+        self, selected: TagMessage, intrinsics_mismatch: bool, finish: Callable[[], Analysis]
+    ) -> None:
+        self.selected = selected
+        #: as :attr:`Analysis.intrinsics_mismatch`
+        self.intrinsics_mismatch = intrinsics_mismatch
+        self._finish = finish
+
+    def finish(self) -> Analysis:
+        """The whole analysis: every detection judged, the verifier's memory and counts
+        updated. Call it once, before the next frame of the stream begins."""
+        return self._finish()

@@ -26,6 +26,8 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import VETO_REASONS
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import lookalike_frame
@@ -424,3 +426,31 @@ def test_vetoed_look_alikes_are_counted_by_reason(rig: Rig) -> None:
         what="the vetoes counted",
     )
     assert set(rig.service.status()["vetoed_by_reason"]) == set(VETO_REASONS)
+
+
+def test_the_tag_is_out_before_the_other_detections_are_judged(
+    rig: Rig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A failure judging tag 3 (after the selected tag 7 was published) is counted as a
+    # processing error: the tag stays out, the frame is not rejected, the worker goes on.
+    check = Verifier.check
+
+    def failing_on_3(self: Verifier, gray: np.ndarray, detection: Detection) -> str | None:
+        if detection.tag_id == 3:
+            msg = "simulated failure"
+            raise ValueError(msg)
+        return check(self, gray, detection)
+
+    monkeypatch.setattr(Verifier, "check", failing_on_3)
+    rig.put_raw(SCENE, seq=1)
+    assert TagCodec().decode(rig.tags.get(timeout=20).payload).tag_id == 7
+    wait_until(
+        lambda: rig.service.status()["processing_errors"].get("detect") == 1,
+        what="the failure counted",
+    )
+    status = rig.service.status()
+    assert status["rejected_by_reason"] == {} and status["worker_alive"] is True
+    monkeypatch.undo()
+    rig.put_raw(SCENE, seq=2)
+    tag, record = rig.answer()
+    assert tag.tag_id == 7 and record["seq"] == 2  # no record was put for the first frame

@@ -429,16 +429,32 @@ class Verifier:
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
         """The detections kept (the same objects, in order) and the reason of each veto."""
-        if gray.shape != self._shape:
-            self._shape, self._kept = gray.shape, []
+        self.start(gray)
         kept: list[Detection] = []
         reasons: list[str] = []
         for detection in detections:
-            again = any(seen_again(detection, before) for before in self._kept)
-            reason = None if again else self.check(gray, detection)
+            reason = self.judge(gray, detection)
             if reason is None:
                 kept.append(detection)
             else:
                 reasons.append(reason)
-        self._kept = kept
+        self.commit(kept)
         return kept, reasons
+
+    # :meth:`verify` in steps, for a caller that decides on some detections before others:
+    # start, judge each detection of the frame once (in any order), commit those kept.
+
+    def start(self, gray: Gray) -> None:
+        """A frame of the stream begins (one of another size begins the stream anew)."""
+        if gray.shape != self._shape:
+            self._shape, self._kept = gray.shape, []
+
+    def judge(self, gray: Gray, detection: Detection) -> str | None:
+        """:meth:`check`, unless ``detection`` is one kept on the frame before seen again."""
+        if any(seen_again(detection, before) for before in self._kept):
+            return None
+        return self.check(gray, detection)
+
+    def commit(self, kept: list[Detection]) -> None:
+        """The frame's detections kept, for the next frame's :meth:`judge`."""
+        self._kept = kept

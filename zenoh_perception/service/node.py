@@ -425,13 +425,14 @@ class PerceptionService:
             source = "cdr"
         decoded = time.monotonic_ns()
         try:
-            analysis = self._pipeline.process(frame)
+            # the selected tag first: the verifier judges the other detections after its put
+            pending = self._pipeline.begin(frame)
         except _DETECT_ERRORS as err:
             # A detector failing on one (valid) frame must not kill the worker: status and
             # liveliness would still say "alive" while no frame is ever answered again.
             raise ProcessingError("detect", err) from err
         # counted before any output is out: whoever reads one may ask the status next
-        if analysis.intrinsics_mismatch:
+        if pending.intrinsics_mismatch:
             self.stats.on_intrinsics_mismatch()
             self._log_limited(
                 logging.WARNING,
@@ -442,11 +443,17 @@ class PerceptionService:
                 "left out for this frame",
             )
         try:
-            tag = bytes(self._codec.encode(analysis.selected))
+            tag = bytes(self._codec.encode(pending.selected))
         except _ENCODE_ERRORS as err:
             raise ProcessingError("encode_tag", err) from err
         self._publish(self._tag_pub, "tag", tag)
         published = time.monotonic_ns()
+        # From here on the frame is answered: later failures are counted, not rejections.
+        try:
+            analysis = pending.finish()
+        except _DETECT_ERRORS as err:
+            self._processing_failed(ProcessingError("detect", err))
+            return
         latency_ms = (published - arrival.received_ns) / 1e6
         decode_ms = (decoded - started) / 1e6
         self._seq += 1
@@ -467,7 +474,6 @@ class PerceptionService:
             },
             source=source,
         )
-        # From here on the frame is answered: later failures are counted, not rejections.
         try:
             self._publish(self._record_pub, "record", record.to_msgpack())
         except _ENCODE_ERRORS as err:

@@ -17,7 +17,7 @@ With no detection the selection is :data:`NO_TAG` (id -1, all zeros).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
@@ -71,12 +71,11 @@ class TagObservation:
         return TagMessage(self.tag_id, self.x, self.y, self.closeness)
 
 
-def select_tag(
-    tags: Sequence[TagObservation], width: int, height: int, policy: Policy = Policy.CLOSEST
-) -> TagObservation | None:
-    """The tag ``policy`` picks among ``tags``, or None when there is none."""
-    if not tags:
-        return None
+def selection_key(
+    width: int, height: int, policy: Policy = Policy.CLOSEST
+) -> Callable[[TagObservation], tuple[float, ...]]:
+    """The key ``policy`` ranks tags by (the least first), in a frame of ``width`` x
+    ``height``: sorting by it puts the tag :func:`select_tag` picks first."""
 
     def centre_offset(tag: TagObservation) -> float:
         return distance_to_center(tag.x, tag.y, width, height)
@@ -86,14 +85,18 @@ def select_tag(
         return 0 if tag.metric == Metric.DISTANCE else 1
 
     if policy is Policy.CENTER:
-        return min(
-            tags,
-            key=lambda t: (centre_offset(t), metric_rank(t), t.closeness, t.tag_id, t.y, t.x),
-        )
+        return lambda t: (centre_offset(t), metric_rank(t), t.closeness, t.tag_id, t.y, t.x)
     # Last keys (y, x) only make the choice independent of detection order in exact ties.
-    return min(
-        tags, key=lambda t: (metric_rank(t), t.closeness, centre_offset(t), t.tag_id, t.y, t.x)
-    )
+    return lambda t: (metric_rank(t), t.closeness, centre_offset(t), t.tag_id, t.y, t.x)
+
+
+def select_tag(
+    tags: Sequence[TagObservation], width: int, height: int, policy: Policy = Policy.CLOSEST
+) -> TagObservation | None:
+    """The tag ``policy`` picks among ``tags``, or None when there is none."""
+    if not tags:
+        return None
+    return min(tags, key=selection_key(width, height, policy))
 
 
 def selected_message(
