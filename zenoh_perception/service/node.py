@@ -5,8 +5,9 @@ Threads:
 - Zenoh's callback threads only stamp the arrival time and drop the sample into a
   latest-frame-wins mailbox (O(1), no copy, no decoding).
 - One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
-  zero-copy view, runs the pipeline and publishes ``tag`` then the record (and the debug image
-  while it is watched).
+  zero-copy view, runs the pipeline up to the selected tag and publishes ``tag``, then lets
+  the pipeline finish the frame (the veto's other detections) and publishes the record (and
+  the debug image while it is watched).
 - With ``frame_deadline_ms`` a frame the detector does not finish in time is abandoned (a
   rejection, counted with its time) and the newest frame read next by a fresh detector. By
   default (``detector_process = "on_stall"``) the worker detects in-process and a watchdog
