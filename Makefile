@@ -3,6 +3,7 @@
 #   make test   same set-up, then lint, type check and the whole test suite
 #   make demo   synthetic camera + service + echo in one process
 #   make bench  the generator benchmark against OpenCV's default (docs/benchmarks.md)
+#   make flood | soak | fuzz | stalls   the project's stress tools (tools/README.md)
 
 SHELL := /bin/bash
 VENV ?= .venv
@@ -17,7 +18,7 @@ ARGS ?=
 # one pytest worker per core; the tests of one bench run share a worker (tests/bench/conftest.py)
 PYTEST_ARGS ?= -n auto --dist loadgroup
 
-.PHONY: venv run demo echo test lint typecheck pytest bench tools clean
+.PHONY: venv run demo echo test lint typecheck pytest bench flood soak fuzz stalls system-tools clean
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" || { echo "error: Python 3.11+ not found (set PYTHON=...)" >&2; exit 1; }
@@ -40,7 +41,7 @@ echo: venv
 # System tools the tests use: Debian's docker-compose validates docker-compose.yml (no Docker
 # engine runs here) and openssl makes the certificates of the TLS tests. Installed when missing.
 SYSTEM_TOOLS := docker-compose openssl
-tools:
+system-tools:
 	@missing=""; for t in $(SYSTEM_TOOLS); do command -v $$t >/dev/null 2>&1 || missing="$$missing $$t"; done; \
 	if [ -n "$$missing" ]; then \
 		echo "installing Debian packages:$$missing"; \
@@ -49,19 +50,23 @@ tools:
 	fi
 
 lint: venv
-	$(BIN)/ruff check zenoh_perception tests corpus
-	$(BIN)/ruff format --check zenoh_perception tests corpus
+	$(BIN)/ruff check zenoh_perception tools tests corpus
+	$(BIN)/ruff format --check zenoh_perception tools tests corpus
 
 typecheck: venv
 	$(BIN)/mypy
 
-pytest: venv tools
+pytest: venv system-tools
 	$(BIN)/pytest $(PYTEST_ARGS)
 
 test: lint typecheck pytest
 
 bench: venv
 	$(BIN)/zenoh-perception bench $(ARGS)
+
+# The stress tools are not installed with the package: each runs from this folder.
+flood soak fuzz stalls: venv
+	$(BIN)/python -m tools.$@ $(ARGS)
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis *.egg-info

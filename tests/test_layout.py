@@ -1,4 +1,7 @@
-"""The package's layers: imports flow one way, and the command line stays light."""
+"""The package's layers: imports flow one way, and the command line stays light.
+
+The stress tools (``tools/``, not installed) sit on top of the package; nothing in the package
+imports them, and neither imports the tests."""
 
 from __future__ import annotations
 
@@ -9,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "zenoh_perception"
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "zenoh_perception"
+TOOLS = REPO / "tools"
 
 # Bottom to top: a module may import from its own layer and the layers below it.
 LAYERS: tuple[tuple[str, ...], ...] = (
@@ -24,13 +29,16 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("zenoh_perception.camera",),
     ("zenoh_perception.bench",),
     ("zenoh_perception.cli", "zenoh_perception.__main__"),
+    ("tools",),
 )
+#: Top-level packages whose imports the layers govern (``tests`` is in none: nothing imports it).
+CHECKED = ("zenoh_perception", "tools", "tests")
 # The one place that imports inside functions: each subcommand's module, when it runs.
 LAZY = "zenoh_perception.cli.commands"
 
 
 def _module_name(path: Path) -> str:
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    parts = path.relative_to(REPO).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -45,7 +53,7 @@ def _layer(module: str) -> int:
 
 
 def _imports(path: Path) -> list[tuple[str, bool]]:
-    """(imported module, imported at the top level) for each zenoh_perception import."""
+    """(imported module, imported at the top level) for each import of :data:`CHECKED`."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     top = {id(node) for node in tree.body}
     found: list[tuple[str, bool]] = []
@@ -58,14 +66,14 @@ def _imports(path: Path) -> list[tuple[str, bool]]:
             names = [alias.name for alias in node.names]
         else:
             continue
-        found += [(n, id(node) in top) for n in names if n.split(".")[0] == "zenoh_perception"]
+        found += [(n, id(node) in top) for n in names if n.split(".")[0] in CHECKED]
     return found
 
 
-MODULES = sorted(PACKAGE.rglob("*.py"))
+MODULES = sorted(PACKAGE.rglob("*.py")) + sorted(TOOLS.rglob("*.py"))
 
 
-@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(PACKAGE)))
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(REPO)))
 def test_imports_flow_down_the_layers(path: Path) -> None:
     module = _module_name(path)
     for imported, at_top in _imports(path):
@@ -78,6 +86,13 @@ def test_imports_flow_down_the_layers(path: Path) -> None:
 def test_layer_check_catches_an_upward_import() -> None:
     assert _layer("zenoh_perception.service.node") > _layer("zenoh_perception.wire.frames")
     assert _layer("zenoh_perception.detect.opencv") < _layer("zenoh_perception.settings")
+    assert _layer("tools.rig") > _layer("zenoh_perception.cli.main")
+
+
+def test_the_tools_are_found_and_no_layer_holds_the_tests() -> None:
+    assert REPO / "tools" / "soak.py" in MODULES
+    with pytest.raises(AssertionError, match="in no layer"):
+        _layer("tests.helpers")
 
 
 def test_the_command_line_loads_no_opencv_scene_or_bench() -> None:

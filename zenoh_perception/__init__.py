@@ -12,7 +12,7 @@ layer and the layers above it in this list:
 - ``pipeline``  frame -> grey -> detections -> tags -> selection, no I/O
 - ``service``   the Zenoh node (subscriber, worker, publishers, status, liveliness) and its parts
 - ``camera``    what publishes frames when no ZED does: shared memory, replay, the demo camera
-- ``bench``     benchmarks and stress tools
+- ``bench``     the benchmarks a user runs against OpenCV's default (``zenoh-perception bench``)
 - ``cli``       the ``zenoh-perception`` command
 """
 

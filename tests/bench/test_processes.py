@@ -13,6 +13,8 @@ from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.processes import (
     FLOOR,
     Camera,
+    frames_of,
+    is_idle,
     raw_frame,
     raw_frames,
     services,
@@ -33,6 +35,14 @@ def test_raw_frames_number_the_scenes_in_order() -> None:
     generator = SceneGenerator(CameraModel.named("VGA"), seed=4)
     frames = raw_frames(generator.random_scene(1, 0) for _ in range(3))
     assert [msgpack.unpackb(f.attachment, raw=False)["seq"] for f in frames] == [0, 1, 2]
+
+
+def test_status_counts_and_idleness() -> None:
+    # idle: every frame received is accounted for (none waits in the mailbox)
+    counts = {"received": 5, "processed": 3, "dropped": 1, "rejected": 1}
+    assert frames_of({"frames": counts}) == counts
+    assert is_idle({"frames": counts})
+    assert not is_idle({"frames": counts | {"received": 6}})
 
 
 def test_a_camera_without_shared_memory_puts_the_bytes_themselves() -> None:

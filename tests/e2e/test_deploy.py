@@ -1,7 +1,7 @@
 """Deployment files: the zenoh-bridge-ros2dds config, docker-compose.yml, Dockerfile, .dockerignore.
 
 No Docker engine runs here: the compose file is validated by Debian's docker-compose (v1), which
-`make tools` installs; the Dockerfile and the build context are checked as text.
+`make system-tools` installs; the Dockerfile and the build context are checked as text.
 """
 
 from __future__ import annotations
@@ -228,7 +228,7 @@ def _docker_compose() -> str:
     if path is None:
         pytest.fail(
             "docker-compose is not installed: it validates docker-compose.yml. "
-            "Run `make tools` (apt-get install docker-compose) and retry."
+            "Run `make system-tools` (apt-get install docker-compose) and retry."
         )
     return path
 

@@ -40,7 +40,7 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.bench.rig import MarkerFrame, marker_frame, raw_attachment
+from tools.rig import MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.resolutions import RESOLUTIONS

@@ -30,7 +30,7 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.bench.rig import marker_frame, raw_attachment
+from tools.rig import marker_frame, raw_attachment
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.records import decode_record
 

@@ -27,7 +27,7 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.bench.rig import marker_frame, raw_attachment
+from tools.rig import marker_frame, raw_attachment
 from zenoh_perception.wire.records import TagCodec, decode_record
 
 FRAMES = "zed/left/image"

@@ -14,7 +14,7 @@ import numpy.typing as npt
 import pytest
 
 from tests.helpers import wait_until
-from zenoh_perception.bench.rig import marker_frame
+from tools.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import FrameAbandonedError

@@ -1,6 +1,5 @@
-"""Benchmark and stress scripts (not tests): they print figures side by side with a baseline.
-
-Run them through ``zenoh-perception bench`` or ``python -m zenoh_perception.bench.<name>``.
+"""The benchmarks a user runs on their own data and machine (not tests): they print figures
+side by side with OpenCV's default. Run them through ``zenoh-perception bench``.
 
 ``zenoh-perception bench`` (:mod:`.generated`) and ``bench --dataset`` (:mod:`.dataset`) are
 built from: :mod:`.progress` (the progress bar), :mod:`.scoring` (what a detector got right),
@@ -8,6 +7,7 @@ built from: :mod:`.progress` (the progress bar), :mod:`.scoring` (what a detecto
 :mod:`.framesets` (the generated frames), :mod:`.processes` (services in processes of their
 own, the bench's camera), :mod:`.e2e` (lockstep end to end through them and :mod:`.floor`,
 the transport floor), :mod:`.throughput`, :mod:`.goals`, :mod:`.report` (the text reports) and
-:mod:`.plot`. :mod:`.flood`, :mod:`.soak` and :mod:`.fuzz` (its payloads in
-:mod:`.fuzz_cases`) load, soak and fuzz the service, driving it with :mod:`.rig`.
+:mod:`.plot`. ``--overhead`` is :mod:`.overhead`, ``--peer ros2`` :mod:`.peer`. The project's
+own stress tools (flood, soak, fuzz, stalls) are not in the package: ``tools/`` in the
+repository.
 """

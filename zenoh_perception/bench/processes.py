@@ -35,7 +35,6 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_endpoint
-from zenoh_perception.bench.rig import frames_of, is_idle
 from zenoh_perception.bench.runners import DICTIONARY
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.camera.shm import Loaded, ShmPutter
@@ -378,6 +377,18 @@ def services(
             remote.close()
         for process in processes:
             process.stop()
+
+
+def frames_of(status: dict[str, Any]) -> dict[str, int]:
+    """The frame counts of a status reply."""
+    frames: dict[str, int] = status["frames"]
+    return frames
+
+
+def is_idle(status: dict[str, Any]) -> bool:
+    """Every received frame was processed, dropped or rejected (nothing left in the mailbox)."""
+    f = frames_of(status)
+    return f["received"] == f["processed"] + f["dropped"] + f["rejected"]
 
 
 def quiet(remote: Remote, timeout: float = 5.0) -> dict[str, Any]:

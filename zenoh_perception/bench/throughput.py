@@ -24,13 +24,13 @@ from zenoh_perception.bench.processes import (
     E2E_DETECTORS,
     Camera,
     RawFrame,
+    frames_of,
     quiet,
     raw_frames,
     services,
     settle,
 )
 from zenoh_perception.bench.progress import Progress, tick
-from zenoh_perception.bench.rig import frames_of
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 
-from zenoh_perception.bench.fuzz_cases import GENERATORS, OK, cases, expected_outcome
+from tools.fuzz_cases import GENERATORS, OK, cases, expected_outcome
 
 _REASONS = {
     "bad_attachment",

@@ -1,7 +1,7 @@
 """Frames that stall OpenCV's detector, and what the frame deadline costs.
 
-``python -m zenoh_perception.bench.stalls [--frames N] [--json PATH]`` measures, on this
-machine and in one run:
+``python -m tools.stalls [--frames N] [--json PATH]`` measures, on this machine and in one
+run:
 
 1. OpenCV's default ``ArucoDetector`` alone on checkerboards whose squares sit just above its
    smallest marker (HD720 / 10 px, HD1080 / 15 px, 4096 x 4096 / 32 px) and on generated HD720
@@ -35,6 +35,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from tools.rig import percentile
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception.bench.processes import (
     Camera,
@@ -44,7 +45,6 @@ from zenoh_perception.bench.processes import (
     raw_frame,
     stop_service,
 )
-from zenoh_perception.bench.rig import percentile
 from zenoh_perception.bench.runners import DICTIONARY, rotation
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary
@@ -286,13 +286,9 @@ def services(frames: int) -> dict[str, Any]:
     return out
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m zenoh_perception.bench.stalls")
-    parser.add_argument("--frames", type=int, default=60, help="generated HD720 frames")
-    parser.add_argument("--json", help="write the figures here too")
-    parser.add_argument("--no-services", action="store_true", help="OpenCV in process only")
-    args = parser.parse_args(argv)
-    normal = [_gray(image) for image in hd720_scenes(min(args.frames, 20))]
+def main(frames: int = 60, *, json_path: Path | None = None, with_services: bool = True) -> int:
+    """Measure, print the figures as JSON (also to ``json_path``)."""
+    normal = [_gray(image) for image in hd720_scenes(min(frames, 20))]
     report: dict[str, Any] = {
         "opencv_alone": opencv_alone(normal),
         "second_thread": second_thread(normal),
@@ -300,14 +296,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         "bounded_parameters": bounded_parameters(normal),
         "child_process": child_process(normal),
     }
-    if not args.no_services:
-        report["services"] = services(args.frames)
+    if with_services:
+        report["services"] = services(frames)
     text = json.dumps(report, indent=2, default=lambda v: round(float(v), 2))
     print(text)
-    if args.json:
-        Path(args.json).write_text(text + "\n", encoding="utf-8")
+    if json_path is not None:
+        json_path.write_text(text + "\n", encoding="utf-8")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    parser = argparse.ArgumentParser(
+        prog="python -m tools.stalls", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--frames", type=int, default=60, help="generated HD720 frames")
+    parser.add_argument("--json", type=Path, help="write the figures here too")
+    parser.add_argument("--no-services", action="store_true", help="OpenCV in process only")
+    args = parser.parse_args()
+    sys.exit(main(args.frames, json_path=args.json, with_services=not args.no_services))

@@ -1,10 +1,10 @@
-"""bench/stalls.py: the boards it measures with."""
+"""tools/stalls.py: the boards it measures with."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from zenoh_perception.bench.stalls import _board_frame, checkerboard
+from tools.stalls import _board_frame, checkerboard
 from zenoh_perception.wire.frames import decode_raw_frame
 
 

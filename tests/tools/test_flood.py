@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from tests.helpers import open_session
-from zenoh_perception.bench.flood import HoldableDetector, LoadConfig, run_load
+from tools.flood import HoldableDetector, LoadConfig, run_load
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings

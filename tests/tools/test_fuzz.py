@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from zenoh_perception.bench.fuzz import run_fuzz
-from zenoh_perception.bench.fuzz_cases import OK
+from tools.fuzz import run_fuzz
+from tools.fuzz_cases import OK
 
 
 def test_service_survives_2000_malformed_payloads_and_answers_good_frames() -> None:

@@ -1,6 +1,6 @@
 """Bad input: malformed frames through the real running service, then good frames.
 
-``python -m zenoh_perception.bench.fuzz --count 100000``
+``python -m tools.fuzz --count 100000``
 
 Starts ``zenoh-perception run`` (a subprocess, loopback, no multicast scouting), publishes
 ``--count`` malformed payloads on ``zed/left/image`` -- random bytes, truncated and bit-flipped
@@ -20,7 +20,7 @@ Zenoh is told to block rather than drop (so ``received == sent``); the service's
 only the newest payload, so at high rates some payloads are dropped before decoding (counted).
 
 Exit status 0 when every check passes, 1 otherwise. The payloads and their predicted
-outcomes are made by :mod:`zenoh_perception.bench.fuzz_cases`.
+outcomes are made by :mod:`tools.fuzz_cases`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -41,17 +40,10 @@ from typing import Any, TextIO
 import numpy as np
 import zenoh
 
+from tools.fuzz_cases import GENERATORS, OK, cases, expected_outcome
+from tools.rig import Camera, Listener, marker_frame, wait_status
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.fuzz_cases import GENERATORS, OK, cases, expected_outcome
-from zenoh_perception.bench.processes import start_service, stop_service
-from zenoh_perception.bench.rig import (
-    Camera,
-    Listener,
-    frames_of,
-    is_idle,
-    marker_frame,
-    wait_status,
-)
+from zenoh_perception.bench.processes import frames_of, is_idle, start_service, stop_service
 from zenoh_perception.service.node import PROCESSING_ERROR
 from zenoh_perception.wire.frames import encode_image_cdr
 
@@ -256,21 +248,22 @@ def format_report(report: FuzzReport) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(count: int, *, seed: int = 0, rate: float = 2000.0, json_path: Path | None = None) -> int:
+    """Fuzz the service and print the report (also to ``json_path``); 1 when a check fails."""
+    report = run_fuzz(count, seed=seed, rate=rate, progress=sys.stderr)
+    print(format_report(report))
+    if json_path is not None:
+        json_path.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
+    return 1 if report.problems() else 0
+
+
+if __name__ == "__main__":
     parser = argparse.ArgumentParser(
-        prog="python -m zenoh_perception.bench.fuzz", description=__doc__.split("\n\n")[0]
+        prog="python -m tools.fuzz", description=__doc__.split("\n\n")[0]
     )
     parser.add_argument("--count", type=int, default=100_000, help="payloads (default 100000)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rate", type=float, default=2000.0, help="payloads/s; 0: unpaced")
     parser.add_argument("--json", type=Path, default=None, help="also write the report here")
-    args = parser.parse_args(argv)
-    report = run_fuzz(args.count, seed=args.seed, rate=args.rate, progress=sys.stderr)
-    print(format_report(report))
-    if args.json is not None:
-        args.json.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
-    return 1 if report.problems() else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    args = parser.parse_args()
+    sys.exit(main(args.count, seed=args.seed, rate=args.rate, json_path=args.json))

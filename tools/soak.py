@@ -1,6 +1,6 @@
 """Soak: the real service (``zenoh-perception run`` subprocess) against a steady camera.
 
-``python -m zenoh_perception.bench.soak --duration 600 --rate 60 --resolution HD720``
+``python -m tools.soak --duration 600 --rate 60 --resolution HD720``
 
 Publishes raw BGRA frames (ArUco markers at moving positions) at ``--rate`` Hz on loopback,
 samples the service process's RSS, thread count and open file descriptors from /proc, measures
@@ -20,26 +20,23 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
 import zenoh
 
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import start_service, stop_service
-from zenoh_perception.bench.rig import (
+from tools.rig import (
     Camera,
     MarkerFrame,
     ProcSample,
-    frames_of,
-    is_idle,
     marker_frame,
     percentile,
     proc_sample,
     wait_status,
 )
+from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception.bench.processes import frames_of, is_idle, start_service, stop_service
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.wire.records import decode_record
@@ -274,9 +271,24 @@ def format_report(report: SoakReport) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(config: SoakConfig, *, json_path: Path | None = None, quiet: bool = False) -> int:
+    """Soak the service and print the report (also to ``json_path``); the exit status."""
+    try:
+        report = run_soak(config, progress=None if quiet else sys.stderr)
+    except (TimeoutError, ChildProcessError, zenoh.ZError) as err:
+        print(f"soak: the service failed: {err}", file=sys.stderr)
+        return 2
+    print(format_report(report))
+    if json_path is not None:
+        json_path.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
+    if report.failures():
+        return 2
+    return 1 if report.problems() else 0
+
+
+if __name__ == "__main__":
     parser = argparse.ArgumentParser(
-        prog="python -m zenoh_perception.bench.soak", description=__doc__.split("\n\n")[0]
+        prog="python -m tools.soak", description=__doc__.split("\n\n")[0]
     )
     parser.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
     parser.add_argument("--rate", type=float, default=60.0, help="frames per second (default 60)")
@@ -285,7 +297,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--max-rss-growth-pct", type=float, default=5.0)
     parser.add_argument("--json", type=Path, default=None, help="also write the report here")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
-    args = parser.parse_args(argv)
+    args = parser.parse_args()
     if args.duration <= 0 or args.rate <= 0:
         parser.error("--duration and --rate must be positive")
     config = SoakConfig(
@@ -295,18 +307,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         warmup_s=args.warmup,
         max_rss_growth_pct=args.max_rss_growth_pct,
     )
-    try:
-        report = run_soak(config, progress=None if args.quiet else sys.stderr)
-    except (TimeoutError, ChildProcessError, zenoh.ZError) as err:
-        print(f"soak: the service failed: {err}", file=sys.stderr)
-        return 2
-    print(format_report(report))
-    if args.json is not None:
-        args.json.write_text(json.dumps(report.as_dict(), indent=2) + "\n", encoding="utf-8")
-    if report.failures():
-        return 2
-    return 1 if report.problems() else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(config, json_path=args.json, quiet=args.quiet))

@@ -1,6 +1,6 @@
 """Camera flood: frames far faster than the service processes them, then one marked frame.
 
-``python -m zenoh_perception.bench.flood --resolution HD720 --ratio 8 --count 240`` starts the
+``python -m tools.flood --resolution HD720 --ratio 8 --count 240`` starts the
 service in this process (loopback peers, no multicast), measures its processing time, floods
 frames at ``ratio`` times its processing rate and then checks what a rover needs:
 
@@ -13,7 +13,7 @@ frames at ``ratio`` times its processing rate and then checks what a rover needs
   ``dropped > 0``.
 
 Its building blocks (marker frames, a camera, a listener, status counts) are in
-:mod:`zenoh_perception.bench.rig`.
+:mod:`tools.rig`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import statistics
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -32,17 +32,9 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from tools.rig import STATUS_KEY, Camera, Listener, marker_frame, proc_sample, wait_status
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.rig import (
-    STATUS_KEY,
-    Camera,
-    Listener,
-    frames_of,
-    is_idle,
-    marker_frame,
-    proc_sample,
-    wait_status,
-)
+from zenoh_perception.bench.processes import frames_of, is_idle
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.resolutions import RESOLUTIONS
@@ -290,16 +282,8 @@ def run_load(
 # -- command line ---------------------------------------------------------------------------------
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m zenoh_perception.bench.flood", description=__doc__.split("\n\n")[0]
-    )
-    parser.add_argument("--resolution", choices=sorted(RESOLUTIONS), default="HD720")
-    parser.add_argument("--ratio", type=float, default=8.0, help="flood rate / processing rate")
-    parser.add_argument("--count", type=int, default=240, help="frames in the flood")
-    parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    args = parser.parse_args(argv)
-    config = LoadConfig(resolution=args.resolution, ratio=args.ratio, count=args.count)
+def main(config: LoadConfig, *, as_json: bool = False) -> int:
+    """Flood a service started in this process and print what it did; 1 when a check fails."""
     endpoint = loopback_endpoint()
     settings = Settings(stats_interval_s=0.0)
     gate = HoldableDetector(make_detector(settings.detector, settings.dictionary))
@@ -310,7 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ):
         report = run_load(camera_session, gate, config)
     problems = report.problems()
-    if args.json:
+    if as_json:
         print(json.dumps({**report.as_dict(), "problems": problems}, indent=2))
     else:
         f = frames_of(report.status)
@@ -329,4 +313,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    parser = argparse.ArgumentParser(
+        prog="python -m tools.flood", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--resolution", choices=sorted(RESOLUTIONS), default="HD720")
+    parser.add_argument("--ratio", type=float, default=8.0, help="flood rate / processing rate")
+    parser.add_argument("--count", type=int, default=240, help="frames in the flood")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    args = parser.parse_args()
+    config = LoadConfig(resolution=args.resolution, ratio=args.ratio, count=args.count)
+    sys.exit(main(config, as_json=args.json))

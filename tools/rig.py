@@ -1,6 +1,9 @@
-"""The pieces the robustness scripts, the benches and the tests share to drive a service:
-marker frames, a raw-frame camera, a listener of the service's outputs, its status counts and
-/proc readings."""
+"""The pieces the stress tools and the tests share to drive a service: marker frames, a
+raw-frame camera, a listener of the service's outputs, a wait on its status, /proc readings.
+
+Status counts (:func:`~zenoh_perception.bench.processes.frames_of`,
+:func:`~zenoh_perception.bench.processes.is_idle`) come from the package's bench, which uses
+them too."""
 
 from __future__ import annotations
 
@@ -212,17 +215,6 @@ class Listener:
             subscriber.undeclare()  # type: ignore[no-untyped-call]
 
 
-def frames_of(status: dict[str, Any]) -> dict[str, int]:
-    frames: dict[str, int] = status["frames"]
-    return frames
-
-
-def is_idle(status: dict[str, Any]) -> bool:
-    """Every received frame was processed, dropped or rejected (nothing left in the mailbox)."""
-    f = frames_of(status)
-    return f["received"] == f["processed"] + f["dropped"] + f["rejected"]
-
-
 def wait_status(
     session: zenoh.Session,
     predicate: Callable[[dict[str, Any]], bool],
@@ -241,7 +233,7 @@ def wait_status(
             if predicate(last):
                 return last
         time.sleep(0.02)
-    msg = f"status never met {what} within {timeout} s (last: {last and frames_of(last)})"
+    msg = f"status never met {what} within {timeout} s (last: {last and last['frames']})"
     raise TimeoutError(msg)
 
 

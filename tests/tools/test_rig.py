@@ -1,4 +1,4 @@
-"""The pieces that drive a service in the robustness scripts, benches and tests."""
+"""The pieces that drive a service in the stress tools and the tests."""
 
 from __future__ import annotations
 
@@ -8,14 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from zenoh_perception.bench.rig import (
-    frames_of,
-    is_idle,
-    marker_frame,
-    percentile,
-    proc_sample,
-    raw_attachment,
-)
+from tools.rig import marker_frame, percentile, proc_sample, raw_attachment
 from zenoh_perception.wire.frames import decode_attachment
 
 
@@ -40,14 +33,6 @@ def test_a_marker_that_does_not_fit_is_refused() -> None:
 def test_a_raw_attachment_decodes_to_its_frame() -> None:
     meta = decode_attachment(raw_attachment(320, 240, seq=7, encoding="bgr8"))
     assert (meta.width, meta.height, meta.encoding, meta.seq) == (320, 240, "bgr8", 7)
-
-
-def test_status_counts_and_idleness() -> None:
-    # idle: every frame received is accounted for (none waits in the mailbox)
-    counts = {"received": 5, "processed": 3, "dropped": 1, "rejected": 1}
-    assert frames_of({"frames": counts}) == counts
-    assert is_idle({"frames": counts})
-    assert not is_idle({"frames": counts | {"received": 6}})
 
 
 def test_percentile_of_nothing_is_zero() -> None:
