@@ -40,4 +40,4 @@ def test_each_tool_parses_its_flags_from_the_repository_root(name: str) -> None:
         check=False,
     )
     assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith(f"usage: python -m tools.{name}")
+    assert done.stdout.startswith("usage: ")
