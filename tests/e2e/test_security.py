@@ -17,7 +17,7 @@ import json
 import queue
 import secrets
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
@@ -266,6 +266,9 @@ def test_consumer_reads_perception_status_and_liveliness(secured: _Deployment) -
 
 
 def test_roles_cannot_publish_outside_their_keys(secured: _Deployment) -> None:
+    """Each spoofing publisher first sees a matching subscriber, and its put raises nothing:
+    the router drops it without telling the sender (docs/security.md, a denied key is
+    silent)."""
     frames = Collector(secured.client("perception"), _FRAMES)
     navigation = secured.client("consumer")
     tags = Collector(navigation, _TAG)
@@ -510,29 +513,18 @@ def _ros_peer_tokens(transport: str) -> dict[str, list[str]]:
     consumer node (subscribing to what it publishes)."""
     if transport != RMW_ZENOH:
         return {"camera": [], "consumer": []}
-    settings = load_settings(REPO / "config" / "perception.toml", _ALL_KEYS)
-    store = make_typestore(settings.ros_package)
+    peer = _Peer(transport, _ALL_KEYS)
     tokens: dict[str, list[str]] = {}
     for role, name, direction, kind in [
         ("camera", "zed_camera", Direction.SUBSCRIBE, PUBLISHER),
         ("consumer", "navigation", Direction.PUBLISH, SUBSCRIPTION),
     ]:
         node = NodeInfo(0, "0123456789abcdef0123456789abcdef", name)
-        tokens[role] = [node.node_token()]
-        for entity_id, topic in enumerate(ROS_TOPICS, start=1):
-            if topic.direction is direction:
-                ros_type = topic.type_name(settings.ros_package)
-                fq_topic = fully_qualified("", str(getattr(settings, topic.key_setting)))
-                tokens[role].append(
-                    node.entity_token(
-                        entity_id,
-                        kind,
-                        fq_topic,
-                        ros_type,
-                        hash_=type_hash(store, ros_type),
-                        qos=topic.qos,
-                    )
-                )
+        tokens[role] = [node.node_token()] + [
+            peer.token(node, entity_id, kind, topic.role)
+            for entity_id, topic in enumerate(ROS_TOPICS, start=1)
+            if topic.direction is direction
+        ]
     return tokens
 
 
@@ -544,26 +536,12 @@ def service_keys(request: pytest.FixtureRequest) -> tuple[str, list[tuple[str, s
 def test_the_service_declares_every_topic_of_the_table(
     service_keys: tuple[str, list[tuple[str, str]]],
 ) -> None:
-    """The recording sees every ROS topic (the checks below are not vacuous)."""
+    """The recording sees every ROS topic and the rest (the checks below are not vacuous)."""
     transport, used = service_keys
-    declared = {key for message, key in used if message in (_PUBLISH, _SUBSCRIBE)}
-    expected = (
-        {str(key) for key in _plain_keys(Direction.PUBLISH, Direction.SUBSCRIBE)}
-        if transport == "bridge"
-        else set()
-    )
-    assert expected <= declared
-    assert len([m for m, _ in used if m in (_PUBLISH, _SUBSCRIBE)]) >= len(ROS_TOPICS) + 1
+    peer = _Peer(transport, _ALL_KEYS)
+    expected = {peer.key(topic.role, any_hash=topic.any_hash) for topic in ROS_TOPICS}
+    assert expected <= {key for message, key in used if message in (_PUBLISH, _SUBSCRIBE)}
     assert {_QUERYABLE, _TOKEN, _TOKEN_WATCH} <= {message for message, _ in used}
-
-
-def _plain_keys(*directions: Direction) -> list[str]:
-    settings = load_settings(REPO / "config" / "perception.toml", _ALL_KEYS)
-    return [
-        str(getattr(settings, topic.key_setting))
-        for topic in ROS_TOPICS
-        if topic.direction in directions
-    ]
 
 
 @pytest.mark.parametrize("profile", sorted(_PROFILE_DIRS))
@@ -649,9 +627,9 @@ class _Peer:
     ``<domain>/<topic>/<type>/<hash>``, or the plain keys the bridge maps) and the frames a
     camera publishes on them."""
 
-    def __init__(self, transport: str) -> None:
+    def __init__(self, transport: str, overrides: Mapping[str, object] | None = None) -> None:
         self.rmw_zenoh = transport == RMW_ZENOH
-        self._settings = load_settings(REPO / "config" / "perception.toml")
+        self._settings = load_settings(REPO / "config" / "perception.toml", overrides)
         self._store = make_typestore(self._settings.ros_package)
         self._seq = 0
 
@@ -690,19 +668,19 @@ class _Peer:
         return jpeg, Attachment(self._seq, time.time_ns(), gid).encode()
 
 
-def _cfg_args(mtls: _Deployment) -> list[str]:
-    """--cfg flags pointing the shipped perception.json5 at the test's certificates."""
-    role = mtls.pki["perception"]
+def _cfg_args(deployment: _Deployment) -> list[str]:
+    """--cfg flags pointing the shipped perception.json5 at the test's certificates (and,
+    user/password profile, giving the password)."""
     tls = "transport/link/tls"
-    overrides = {
-        f"{tls}/root_ca_certificate": mtls.pki.ca,
-        f"{tls}/connect_certificate": role.cert,
-        f"{tls}/connect_private_key": role.key,
-    }
+    overrides: dict[str, object] = {f"{tls}/root_ca_certificate": str(deployment.pki.ca)}
+    if deployment.profile == "usrpwd":
+        overrides["transport/auth/usrpwd/password"] = deployment.passwords["perception"]
+    else:
+        role = deployment.pki["perception"]
+        overrides[f"{tls}/connect_certificate"] = str(role.cert)
+        overrides[f"{tls}/connect_private_key"] = str(role.key)
     return [
-        arg
-        for key, path in overrides.items()
-        for arg in ("--cfg", f"{key}:{json.dumps(str(path))}")
+        arg for key, value in overrides.items() for arg in ("--cfg", f"{key}:{json.dumps(value)}")
     ]
 
 
@@ -719,21 +697,24 @@ def _sample_of(inbox: Collector) -> Received:
 
 
 @pytest.mark.parametrize("transport", _TRANSPORTS)
-def test_real_service_with_the_shipped_perception_config(mtls: _Deployment, transport: str) -> None:
-    """`zenoh-perception run -c config/secure/perception.json5` behind the secured router, in
-    both ROS transports: raw and compressed frames are answered, and a consumer receives the
-    tag, record, detections, transforms, debug image, status and liveliness; the same keys
-    refuse an impostor (an authenticated consumer, or the camera, publishing or serving them,
-    or feeding the service frames; on an rmw_zenoh graph, claiming the service's node).
+def test_real_service_with_the_shipped_perception_config(
+    secured: _Deployment, transport: str
+) -> None:
+    """`zenoh-perception run -c config/secure/perception.json5` (or usrpwd/) behind the
+    secured router, in both ROS transports: raw and compressed frames are answered, and a
+    consumer receives the tag, record, detections, transforms, debug image, status and
+    liveliness; the same keys refuse an impostor (an authenticated consumer, or the camera,
+    publishing or serving them, or feeding the service frames; on an rmw_zenoh graph,
+    claiming the service's node).
 
-    The shipped config is used as is; only the router endpoint (-e) and the certificate paths
-    (--cfg) are overridden on the command line, as an operator would.
+    The shipped config is used as is; only the router endpoint (-e), the certificate paths and
+    the password (--cfg) are overridden on the command line, as an operator would.
     """
     peer = _Peer(transport)
-    consumer = mtls.client("consumer")
+    consumer = secured.client("consumer")
     outputs = {role: Collector(consumer, peer.key(role, any_hash=True)) for role in _OUTPUTS}
     records = Collector(consumer, _TAGS_RECORD)
-    camera = mtls.client("camera")
+    camera = secured.client("camera")
     camera_node = NodeInfo(0, str(camera.zid()), "zed_camera")
     camera_tokens = [camera_node.node_token()] + [
         peer.token(camera_node, entity_id, PUBLISHER, role)
@@ -743,8 +724,8 @@ def test_real_service_with_the_shipped_perception_config(mtls: _Deployment, tran
     gid = gid_of(camera_tokens[1])
 
     with running_cli(
-        "run", "-c", str(_CONFIG_DIR / "perception.json5"),
-        "-e", f"tls/127.0.0.1:{mtls.port}", *_cfg_args(mtls),
+        "run", "-c", str(_PROFILE_DIRS[secured.profile] / "perception.json5"),
+        "-e", f"tls/127.0.0.1:{secured.port}", *_cfg_args(secured),
         "--ros-transport", transport, "--stats-interval-s", "0", *_POSE_ARGS,
     ) as service:  # fmt: skip
         status = wait_for_status(consumer)  # the status queryable answers through the router
@@ -763,7 +744,7 @@ def test_real_service_with_the_shipped_perception_config(mtls: _Deployment, tran
         # Impostors: an authenticated consumer publishes on every output and feeds frames
         # (tag 13), serves the status and claims the service's liveliness (and ROS node);
         # the camera publishes a tag.
-        intruder = mtls.client("consumer")
+        intruder = secured.client("consumer")
         spoofed = [(intruder, first[role].key) for role in _OUTPUTS] + [
             (intruder, _TAGS_RECORD),
             (camera, first["tag"].key),
