@@ -18,7 +18,7 @@ from zenoh_perception.bench.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import FrameAbandonedError
-from zenoh_perception.service.guard import GuardedDetector, StaleDetection
+from zenoh_perception.service.guard import LOW_PRIORITY, GuardedDetector, StaleDetection
 
 #: A first pixel of this value stalls the test detector until RELEASE is set (in this process;
 #: in the child, where nobody sets it, until the child is killed).
@@ -131,9 +131,9 @@ def test_a_stalled_read_is_abandoned_and_its_thread_ends_stale(guard: GuardedDet
     assert elapsed_ms >= 300.0
     assert guard.stuck == 1
     assert guard.in_child
-    # the abandoned thread keeps running, at the lowest priority
+    # the abandoned thread keeps running, at a low priority
     assert reader.native_id is not None
-    assert os.getpriority(os.PRIO_PROCESS, reader.native_id) == 19
+    assert os.getpriority(os.PRIO_PROCESS, reader.native_id) == LOW_PRIORITY
     # the next frame is read by the child, straight from its segment
     gray = _gray(7)
     buffer = guard.gray_buffer(480, 640)

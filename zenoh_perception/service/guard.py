@@ -7,8 +7,8 @@ IsolatedDetector`) bounds every frame but costs each one two process wake-ups. S
 (the service's worker) and a watchdog thread calls :meth:`GuardedDetector.check`:
 
 - A read still running after ``deadline_s`` is abandoned: ``check`` returns its time, the
-  watchdog starts another worker, and the stuck thread, lowered to the weakest scheduling
-  priority, finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
+  watchdog starts another worker, and the stuck thread, lowered to a low scheduling priority,
+  finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
   results are dropped, it touches nothing else) and ends. A fresh detector serves the next
   in-process read, so a detector's state between frames starts afresh, as after a restart.
 - While an abandoned read is still running, and for ``calm_s`` after the last abandoned frame,
@@ -39,8 +39,11 @@ CALM_S: Final = 5.0
 #: Longest sleep of the watchdog while no read is in flight, seconds: a read that starts
 #: meanwhile is looked at no later than this, then exactly at its deadline.
 _IDLE_POLL_S: Final = 0.1
-#: The nice value an abandoned thread is lowered to (Linux threads each have their own).
-_LOWEST_PRIORITY: Final = 19
+#: The nice value an abandoned thread is lowered to (Linux threads each have their own): a
+#: tenth of a normal thread's share of a busy core. Not 19 (a seventieth): the kernel ends a
+#: process only once each of its threads has run again, and on a loaded machine a thread at
+#: nice 19 waits seconds for that, which held up the exit on SIGTERM.
+LOW_PRIORITY: Final = 10
 
 
 class StaleDetection(Exception):  # noqa: N818 - not an error: the thread was replaced
@@ -156,8 +159,8 @@ class GuardedDetector:
             self._read = None
             self._stuck += 1
             self._calm_at = now + self.calm_s
-        with suppress(OSError):  # not permitted or thread gone: it only runs at full priority
-            os.setpriority(os.PRIO_PROCESS, read.native_id, _LOWEST_PRIORITY)
+        with suppress(OSError):  # not permitted or thread gone: it runs at full priority
+            os.setpriority(os.PRIO_PROCESS, read.native_id, LOW_PRIORITY)
         # The abandoned detector stays with its thread; a detector keeping state between
         # frames (tracking) starts afresh, as a restarted child does.
         self._local = self._factory()
