@@ -192,3 +192,40 @@ def test_after_abandon_no_read_starts(guard: GuardedDetector) -> None:
     with pytest.raises(StaleDetection):
         guard.detect(_gray(5))
     assert not guard.reading
+
+
+def _may_raise_priority() -> bool:
+    """Whether this process may raise a thread's priority again (root, CAP_SYS_NICE)."""
+    allowed: list[bool] = []
+
+    def probe() -> None:
+        native = threading.get_native_id()
+        normal = os.getpriority(os.PRIO_PROCESS, native)
+        os.setpriority(os.PRIO_PROCESS, native, LOW_PRIORITY)
+        try:
+            os.setpriority(os.PRIO_PROCESS, native, normal)
+        except PermissionError:
+            allowed.append(False)
+        else:
+            allowed.append(True)
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join()
+    return allowed == [True]
+
+
+def test_abandon_gives_an_abandoned_thread_its_priority_back_where_permitted(
+    guard: GuardedDetector,
+) -> None:
+    # a lowered thread still in OpenCV would hold the process's exit up on a busy machine
+    reader, _ = _stall(guard)
+    assert reader.native_id is not None
+    assert os.getpriority(os.PRIO_PROCESS, reader.native_id) == LOW_PRIORITY
+    guard.abandon()
+    normal = os.getpriority(os.PRIO_PROCESS, 0)
+    expected = normal if _may_raise_priority() else LOW_PRIORITY
+    assert os.getpriority(os.PRIO_PROCESS, reader.native_id) == expected
+    RELEASE.set()
+    reader.join(5.0)
+    assert isinstance(reader.error, StaleDetection)

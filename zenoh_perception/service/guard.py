@@ -23,7 +23,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-from contextlib import suppress
 from dataclasses import dataclass
 from typing import Final
 
@@ -88,6 +87,7 @@ class GuardedDetector:
         self._lock = threading.Lock()
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector
+        self._lowered: list[_Read] = []  # those of them lowered to LOW_PRIORITY
         self._calm_at = 0.0  # monotonic time from which frames may be read in process again
         self._closing = False  # set by abandon(): no read starts any more
 
@@ -144,6 +144,8 @@ class GuardedDetector:
         with self._lock:
             if read.abandoned:
                 self._stuck -= 1
+                if read in self._lowered:
+                    self._lowered.remove(read)
                 raise StaleDetection
             self._read = None
 
@@ -159,19 +161,28 @@ class GuardedDetector:
             self._read = None
             self._stuck += 1
             self._calm_at = now + self.calm_s
-        with suppress(OSError):  # not permitted or thread gone: it runs at full priority
-            os.setpriority(os.PRIO_PROCESS, read.native_id, LOW_PRIORITY)
+            # under the lock: the thread cannot end meanwhile, its id is still its own
+            if _set_priority(read.native_id, LOW_PRIORITY):
+                self._lowered.append(read)
         # The abandoned detector stays with its thread; a detector keeping state between
         # frames (tracking) starts afresh, as a restarted child does.
         self._local = self._factory()
         return (now - read.started) * 1e3
 
     def abandon(self) -> int | None:
-        """On shutdown: abandon the in-process read in flight, whatever its time, and let no
-        other start (a worker still decoding a frame would otherwise go on to read it, and be
-        waited for). The thread's ``threading.get_ident()``, or None when none is in flight."""
+        """On shutdown: abandon the in-process read in flight, whatever its time, let no other
+        start (a worker still decoding a frame would otherwise go on to read it, and be waited
+        for), and give the threads of reads abandoned before their priority back where
+        permitted. The thread's ``threading.get_ident()``, or None when none is in flight."""
         with self._lock:
             self._closing = True
+            # The threads lowered before get the caller's priority back, where the system lets
+            # a process raise a priority (root, CAP_SYS_NICE): the kernel ends a process only
+            # once each of its threads has run again, which a lowered one waits for.
+            normal = os.getpriority(os.PRIO_PROCESS, 0)
+            for lowered in self._lowered:
+                _set_priority(lowered.native_id, normal)
+            self._lowered.clear()
             read = self._read
             if read is None:
                 return None
@@ -187,3 +198,13 @@ class GuardedDetector:
         if read is None:
             return min(_IDLE_POLL_S, self.deadline_s)
         return max(0.001, read.started + self.deadline_s - time.monotonic())
+
+
+def _set_priority(native_id: int, nice: int) -> bool:
+    """Set the nice value of thread ``native_id``; False where not permitted (raising a
+    priority needs privileges) or the thread is gone."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, native_id, nice)
+    except OSError:
+        return False
+    return True
