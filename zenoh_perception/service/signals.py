@@ -6,9 +6,8 @@ Zenoh: the worker in the middle of a frame, a read the watchdog abandoned (servi
 both daemon threads that nobody can stop. If the interpreter then finalizes, such a thread that
 comes back for the GIL is unwound by force (``pthread_exit``) through C++ code that catches
 everything, and the process dies of SIGABRT (``FATAL: exception not rethrown``) or SIGSEGV
-instead of exiting with its code; OpenCV's static destructors may also wait for a read in
-flight. :func:`leave` ends the process without finalizing the interpreter, once everything a
-normal exit would write or clean up is done.
+instead of exiting with its code. :func:`leave` ends the process without finalizing the
+interpreter, once everything a normal exit would write or clean up is done.
 """
 
 from __future__ import annotations
