@@ -8,16 +8,25 @@
 - A detector error on one frame (OpenCV raises cv2.error) is counted as a rejection
   (``processing_error``) and the worker goes on answering frames.
 - SIGTERM while the worker is busy with an HD2K frame stream exits 0 within 2 s.
+- SIGTERM or SIGINT while a thread of the process is inside OpenCV (as the worker or a read
+  the watchdog abandoned may be) exits 0 within 2 s, for every long-running command: the
+  process ends without finalizing the interpreter under that thread.
 - A client waiting for its router logs the retries at most once per ``log_interval_s``.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import queue
+import signal
+import subprocess
+import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -27,6 +36,7 @@ import pytest
 import zenoh
 
 from tests.helpers import (
+    REPO,
     Collector,
     OutputLines,
     log_events,
@@ -352,3 +362,117 @@ def test_connection_retries_are_logged_at_most_once_per_interval(
     lines = [r.getMessage() for r in caplog.records if "event=connect_failed" in r.getMessage()]
     assert len(lines) == 1, lines
     assert "simulated: no router" in lines[0]
+
+
+# The real command line, in a process one of whose threads stays inside OpenCV, coming back for
+# the GIL between calls, as the service's worker or a read the watchdog abandoned does. Were the
+# interpreter finalized under it, that thread would be unwound by force through OpenCV's
+# catch-all C++ code: SIGABRT ("terminate called without an active exception"), every time.
+_CLI_WITH_A_THREAD_IN_OPENCV = """
+import sys, threading
+import cv2
+import numpy as np
+
+y, x = np.indices((720, 1280))
+board = np.asarray(((x // 10 + y // 10) % 2) * 255, dtype=np.uint8)
+
+def busy():
+    while True:
+        cv2.GaussianBlur(board, (31, 31), 0)
+
+threading.Thread(target=busy, daemon=True).start()
+from zenoh_perception.cli.main import main
+sys.exit(main())
+"""
+
+
+@contextmanager
+def _cli_with_a_thread_in_opencv(*args: str) -> Iterator[subprocess.Popen[str]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CLI_WITH_A_THREAD_IN_OPENCV, *args],
+        cwd=REPO,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
+def _serving(session: zenoh.Session) -> None:
+    wait_for_status(session)
+
+
+def _subscribed(key: str) -> Callable[[zenoh.Session], None]:
+    def ready(session: zenoh.Session) -> None:
+        publisher = session.declare_publisher(key)
+        try:
+            wait_for_subscriber(publisher, timeout=60.0)
+        finally:
+            publisher.undeclare()
+
+    return ready
+
+
+def _publishing(session: zenoh.Session) -> None:
+    frames = Collector(session, FRAMES)
+    try:
+        frames.get(timeout=60.0)
+    finally:
+        frames.undeclare()
+
+
+#: Each long-running command's arguments, and what says it is up (its signal handlers set).
+_COMMANDS: dict[str, tuple[tuple[str, ...], Callable[[zenoh.Session], None]]] = {
+    "run": (("run", "--stats-interval-s", "0"), _serving),
+    "demo": (("demo", "--stats-interval-s", "0", "--resolution", "HD720"), _serving),
+    "echo": (("echo",), _subscribed("tag")),
+    "view": (("view", "--save", "{tmp}/latest.jpg"), _subscribed(Settings().debug_image_key)),
+    "replay": (("replay", "{tmp}/frame.png", "--loop", "--rate", "20"), _publishing),
+}
+
+
+@pytest.mark.parametrize(
+    ("command", "signum"),
+    [
+        ("run", signal.SIGTERM),
+        ("run", signal.SIGINT),
+        ("demo", signal.SIGTERM),
+        ("demo", signal.SIGINT),
+        ("echo", signal.SIGTERM),
+        ("view", signal.SIGTERM),
+        ("replay", signal.SIGTERM),
+    ],
+    ids=lambda value: value.name if isinstance(value, signal.Signals) else value,
+)
+def test_a_signal_exits_0_within_2_seconds_while_a_thread_is_inside_opencv(
+    router: Router, tmp_path: Path, command: str, signum: signal.Signals
+) -> None:
+    assert router.session is not None
+    cv2.imwrite(str(tmp_path / "frame.png"), np.full((240, 320, 3), 255, np.uint8))
+    args, ready = _COMMANDS[command]
+    zenoh_flags = ("-m", "client", "-e", router.endpoint, "--no-multicast-scouting")
+    argv = [a.format(tmp=tmp_path) for a in args]
+    with _cli_with_a_thread_in_opencv(*argv, *zenoh_flags) as proc:
+        ready(router.session)
+        started = time.monotonic()
+        proc.send_signal(signum)
+        try:
+            code = proc.wait(timeout=10.0)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"no exit within 10 s of {signum.name}")
+        elapsed = time.monotonic() - started
+        output = proc.stdout.read() if proc.stdout is not None else ""
+    assert code == 0, output
+    assert elapsed < 2.0, f"exit took {elapsed:.2f} s"
+    assert [e["signal"] for e in log_events(output, "signal")] == [signum.name]
+    if command in ("run", "demo"):
+        assert len(log_events(output, "stopped")) == 1  # the service closed first
+    assert "terminate called" not in output and "Traceback" not in output

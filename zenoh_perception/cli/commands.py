@@ -106,7 +106,7 @@ def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     add_zenoh_arguments(parser)
     add_settings_arguments(parser)
-    parser.set_defaults(handler=_cmd_run)
+    parser.set_defaults(handler=_cmd_run, leaves_threads=True)
 
 
 def _add_demo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -118,7 +118,7 @@ def _add_demo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     _add_demo_arguments(parser)
     add_zenoh_arguments(parser)
     add_settings_arguments(parser)
-    parser.set_defaults(handler=_cmd_demo)
+    parser.set_defaults(handler=_cmd_demo, leaves_threads=True)
 
 
 def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -155,7 +155,7 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=None,
         help="exit after S seconds",
     )
-    parser.set_defaults(handler=_cmd_echo)
+    parser.set_defaults(handler=_cmd_echo, leaves_threads=True)
 
 
 def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -218,7 +218,7 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="S",
         help="exit after S seconds",
     )
-    parser.set_defaults(handler=_cmd_view)
+    parser.set_defaults(handler=_cmd_view, leaves_threads=True)
 
 
 def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
@@ -379,7 +379,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         help="give up (exit 2) when no subscriber appears within S seconds (default: wait)",
     )
     add_zenoh_arguments(parser)
-    parser.set_defaults(handler=_cmd_replay)
+    parser.set_defaults(handler=_cmd_replay, leaves_threads=True)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -534,7 +534,9 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
 
 
 #: Each entry adds one subcommand whose parser sets ``handler`` (a function of the namespace
-#: returning the exit code).
+#: returning the exit code), and ``leaves_threads`` when the command may return while threads
+#: of its process are still inside OpenCV or Zenoh (cli/main.py then ends the process through
+#: service/signals.py's ``leave``).
 COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None], ...] = (
     _add_run,
     _add_demo,

@@ -15,6 +15,7 @@ from zenoh_perception import __version__
 from zenoh_perception.cli.commands import COMMANDS
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.service.logs import configure_logging
+from zenoh_perception.service.signals import leave
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -89,7 +90,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line ``argv``; its exit code.
+
+    Without ``argv`` (the installed ``zenoh-perception``, ``python -m zenoh_perception``) the
+    process's own command line runs, and a command that may leave threads inside OpenCV or
+    Zenoh when it returns (``run``, ``demo``, ``echo``, ``replay``, ``view``) ends the process
+    with its exit code through :func:`~zenoh_perception.service.signals.leave` rather than
+    let the interpreter finalize under them.
+    """
     args = build_parser().parse_args(argv)
+    code = _run(args)
+    if argv is None and getattr(args, "leaves_threads", False):
+        leave(code)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
     configure_logging(args.log_level)
     if not sys.stderr.isatty():
         # Zenoh's log (Rust's tracing) colours its lines unless NO_COLOR is set: a log file

@@ -7,8 +7,8 @@ IsolatedDetector`) bounds every frame but costs each one two process wake-ups. S
 (the service's worker) and a watchdog thread calls :meth:`GuardedDetector.check`:
 
 - A read still running after ``deadline_s`` is abandoned: ``check`` returns its time, the
-  watchdog starts another worker, and the stuck thread, lowered to the weakest scheduling
-  priority, finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
+  watchdog starts another worker, and the stuck thread, lowered to a low scheduling priority,
+  finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
   results are dropped, it touches nothing else) and ends. A fresh detector serves the next
   in-process read, so a detector's state between frames starts afresh, as after a restart.
 - While an abandoned read is still running, and for ``calm_s`` after the last abandoned frame,
@@ -23,7 +23,6 @@ from __future__ import annotations
 import os
 import threading
 import time
-from contextlib import suppress
 from dataclasses import dataclass
 from typing import Final
 
@@ -39,8 +38,11 @@ CALM_S: Final = 5.0
 #: Longest sleep of the watchdog while no read is in flight, seconds: a read that starts
 #: meanwhile is looked at no later than this, then exactly at its deadline.
 _IDLE_POLL_S: Final = 0.1
-#: The nice value an abandoned thread is lowered to (Linux threads each have their own).
-_LOWEST_PRIORITY: Final = 19
+#: The nice value an abandoned thread is lowered to (Linux threads each have their own): a
+#: tenth of a normal thread's share of a busy core. Not 19 (a seventieth): the kernel ends a
+#: process only once each of its threads has run again, and on a loaded machine a thread at
+#: nice 19 waits seconds for that, which held up the exit on SIGTERM.
+LOW_PRIORITY: Final = 10
 
 
 class StaleDetection(Exception):  # noqa: N818 - not an error: the thread was replaced
@@ -85,6 +87,7 @@ class GuardedDetector:
         self._lock = threading.Lock()
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector
+        self._lowered: list[_Read] = []  # those of them lowered to LOW_PRIORITY
         self._calm_at = 0.0  # monotonic time from which frames may be read in process again
         self._closing = False  # set by abandon(): no read starts any more
 
@@ -141,6 +144,8 @@ class GuardedDetector:
         with self._lock:
             if read.abandoned:
                 self._stuck -= 1
+                if read in self._lowered:
+                    self._lowered.remove(read)
                 raise StaleDetection
             self._read = None
 
@@ -156,19 +161,28 @@ class GuardedDetector:
             self._read = None
             self._stuck += 1
             self._calm_at = now + self.calm_s
-        with suppress(OSError):  # not permitted or thread gone: it only runs at full priority
-            os.setpriority(os.PRIO_PROCESS, read.native_id, _LOWEST_PRIORITY)
+            # under the lock: the thread cannot end meanwhile, its id is still its own
+            if _set_priority(read.native_id, LOW_PRIORITY):
+                self._lowered.append(read)
         # The abandoned detector stays with its thread; a detector keeping state between
         # frames (tracking) starts afresh, as a restarted child does.
         self._local = self._factory()
         return (now - read.started) * 1e3
 
     def abandon(self) -> int | None:
-        """On shutdown: abandon the in-process read in flight, whatever its time, and let no
-        other start (a worker still decoding a frame would otherwise go on to read it, and be
-        waited for). The thread's ``threading.get_ident()``, or None when none is in flight."""
+        """On shutdown: abandon the in-process read in flight, whatever its time, let no other
+        start (a worker still decoding a frame would otherwise go on to read it, and be waited
+        for), and give the threads of reads abandoned before their priority back where
+        permitted. The thread's ``threading.get_ident()``, or None when none is in flight."""
         with self._lock:
             self._closing = True
+            # The threads lowered before get the caller's priority back, where the system lets
+            # a process raise a priority (root, CAP_SYS_NICE): the kernel ends a process only
+            # once each of its threads has run again, which a lowered one waits for.
+            normal = os.getpriority(os.PRIO_PROCESS, 0)
+            for lowered in self._lowered:
+                _set_priority(lowered.native_id, normal)
+            self._lowered.clear()
             read = self._read
             if read is None:
                 return None
@@ -184,3 +198,13 @@ class GuardedDetector:
         if read is None:
             return min(_IDLE_POLL_S, self.deadline_s)
         return max(0.001, read.started + self.deadline_s - time.monotonic())
+
+
+def _set_priority(native_id: int, nice: int) -> bool:
+    """Set the nice value of thread ``native_id``; False where not permitted (raising a
+    priority needs privileges) or the thread is gone."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, native_id, nice)
+    except OSError:
+        return False
+    return True

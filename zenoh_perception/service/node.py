@@ -81,6 +81,8 @@ MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
 #: Rejection reason of a decoded frame the pipeline failed on (a detector bug, counted).
 PROCESSING_ERROR = ProcessingError.reason
 _POLL_S = 0.1
+#: Seconds close() waits, in all, for the service's threads to end.
+_JOIN_S: Final = 1.0
 #: Zenoh configuration path of the largest message a session accepts.
 MAX_MESSAGE_SIZE_PATH: Final = "transport/link/rx/max_message_size"
 #: Room a frame message needs besides its payload: the attachment (at most 4 KiB), the key
@@ -248,8 +250,11 @@ class PerceptionService:
         # its own (daemon threads).
         stuck = self._guard.abandon() if self._guard is not None else None
         current = self._workers[-1:]
+        # One deadline for them all: a worker still busy then (a frame's last OpenCV calls)
+        # is left too; the process then ends without finalizing under it (signals.leave).
+        deadline = time.monotonic() + _JOIN_S
         for thread in [*self._threads, *(w for w in current if w.ident != stuck)]:
-            thread.join(timeout=2.0)
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
         if self._isolated is not None:
             self._isolated.close()
         for entity in reversed(self._declared):
