@@ -18,7 +18,7 @@ ARGS ?=
 # one pytest worker per core; the tests of one bench run share a worker (tests/bench/conftest.py)
 PYTEST_ARGS ?= -n auto --dist loadgroup
 
-.PHONY: venv run demo echo test lint typecheck pytest bench flood soak fuzz stalls system-tools clean
+.PHONY: venv run demo echo test lint typecheck pytest bench flood soak fuzz stalls exit-stress system-tools clean
 
 $(STAMP): pyproject.toml
 	@test -n "$(PYTHON)" || { echo "error: Python 3.11+ not found (set PYTHON=...)" >&2; exit 1; }
@@ -67,6 +67,9 @@ bench: venv
 # The stress tools are not installed with the package: each runs from this folder.
 flood soak fuzz stalls: venv
 	$(BIN)/python -m tools.$@ $(ARGS)
+
+exit-stress: venv
+	$(BIN)/python -m tools.exit_stress $(ARGS)
 
 clean:
 	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis *.egg-info
