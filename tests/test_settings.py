@@ -386,3 +386,23 @@ def test_verify_is_on_by_default_and_off_by_flag_or_file(tmp_path: Path) -> None
     path.write_text('verify = "no"\n')
     with pytest.raises(SettingsError, match="verify"):
         load_settings(path)
+
+
+# -- share_group ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["a/b", "*", "-x", ".x", "x" * 65, "@g", "a b", "$*"])
+def test_share_group_is_one_plain_key_chunk(name: str) -> None:
+    with pytest.raises(SettingsError, match="share_group"):
+        settings_from_mapping({"share_group": name})
+
+
+def test_share_group_names_that_are_accepted() -> None:
+    for name in ("rover", "base_station", "fleet-2.a", "0", "x" * 64):
+        assert settings_from_mapping({"share_group": name}).share_group == name
+    assert Settings().share_group == ""  # every stream, as before
+
+
+def test_share_group_needs_the_bridge_transport() -> None:
+    with pytest.raises(SettingsError, match="share_group"):
+        settings_from_mapping({"share_group": "rover", "ros_transport": "rmw_zenoh"})

@@ -36,6 +36,7 @@ import zenoh
 from zenoh_perception.detect.types import DETECTORS, dictionary_names
 from zenoh_perception.errors import IntrinsicsError, SettingsError, zenoh_error_text
 from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
+from zenoh_perception.sharing import GROUP_NAME
 from zenoh_perception.tags.geometry import (
     FOCAL_PX_MAX,
     FOCAL_PX_MIN,
@@ -120,6 +121,13 @@ class Settings:
     )
     camera_info_key: str = field(
         default="", metadata=_doc("key of sensor_msgs/CameraInfo CDR giving intrinsics; '' = off")
+    )
+    share_group: str = field(
+        default="",
+        metadata=_doc(
+            "divide the announced camera streams with the other instances of this "
+            "group; '' = take every stream"
+        ),
     )
     ros_package: str = field(
         default="mrover", metadata=_doc("ROS package of StarterProjectTag (type name only)")
@@ -476,9 +484,28 @@ def _validate_text(settings: Settings) -> None:
             raise SettingsError(msg)
 
 
+def _validate_group(settings: Settings) -> None:
+    name = settings.share_group
+    if not name:
+        return
+    if not GROUP_NAME.fullmatch(name):
+        msg = (
+            f"share_group {name!r} is not a group name (1-64 letters, digits, '_', '.' or '-', "
+            "not starting with '.' or '-')"
+        )
+        raise SettingsError(msg)
+    if settings.ros_transport == "rmw_zenoh":
+        msg = (
+            "share_group needs ros_transport = 'bridge': the group learns the streams from "
+            "the cameras' announcements on plain Zenoh keys"
+        )
+        raise SettingsError(msg)
+
+
 def _validate(settings: Settings) -> None:
     _validate_text(settings)
     _validate_keys(settings)
+    _validate_group(settings)
     check_ros_package(settings.ros_package)
     _validate_ros(settings)
     if not _FRAME_PREFIX.fullmatch(settings.tf_prefix):
