@@ -54,6 +54,7 @@ from zenoh_perception.errors import (
     zenoh_error_text,
 )
 from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
+from zenoh_perception.service.group import StreamGroup, StreamSubscriptions
 from zenoh_perception.service.guard import GuardedDetector, StaleDetection
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.mailbox import LatestMailbox
@@ -147,6 +148,7 @@ class PerceptionService:
         self._seq = 0
         self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._declared: list[Any] = []
+        self._group: StreamGroup | None = None  # with share_group: the streams held
         self._threads: list[threading.Thread] = []
         self._workers: list[threading.Thread] = []
         self._started = False
@@ -235,6 +237,21 @@ class PerceptionService:
             if s.input_key:
                 self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
             on_camera = self._on_ros_frame
+        if s.share_group:
+            # only the announced streams this instance is given, each on its concrete key
+            held = StreamSubscriptions(
+                session, {s.input_key: on_camera, s.compressed_input_key: on_compressed}
+            )
+            self._group = StreamGroup(
+                session,
+                name=s.share_group,
+                liveliness_key=s.liveliness_key,
+                patterns=held.patterns,
+                take=held.take,
+                release=held.release,
+            )
+            self._group.start()
+            return
         if s.input_key:
             self._declared.append(self._ros.subscribe("camera", on_camera))
         if s.compressed_input_key:
@@ -242,6 +259,8 @@ class PerceptionService:
 
     def close(self) -> None:
         """Stop the worker, undeclare everything (the session itself is the caller's)."""
+        if self._group is not None:  # its streams first: the others take them once it is gone
+            self._group.close()
         self._stop.set()
         self._mailbox.close()
         # A worker inside OpenCV is not waited for, nor one abandoned before: each ends on
@@ -297,6 +316,8 @@ class PerceptionService:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
         if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
             return
+        if self.settings.share_group:
+            return  # the members of a group share the keys by design, one holder a stream
         with self._other_lock:
             self._other_tokens += 1
         self._log_limited(
@@ -624,6 +645,7 @@ class PerceptionService:
             "worker_alive": not self.failed.is_set(),
             **snapshot,
             "liveliness": {"other_services": self._other_tokens},
+            "group": None if self._group is None else self._group.status(),
             "vetoed_by_reason": dict(self._pipeline.vetoed),
             "debug_image": {
                 "watched": self._debug_watched.is_set(),
