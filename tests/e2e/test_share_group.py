@@ -60,7 +60,7 @@ class Cameras:
 
     def close(self) -> None:
         for token in self._tokens:
-            token.undeclare()  # type: ignore[no-untyped-call]
+            token.undeclare()
         for publisher in self._publishers.values():
             publisher.undeclare()
 
