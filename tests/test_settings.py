@@ -234,9 +234,22 @@ def test_keys_are_validated_naming_the_setting(values: dict[str, object], named:
         settings_from_mapping(values)
 
 
+#: Output keys of a stream each, as a wildcard input needs.
+STREAM_OUTPUTS = {
+    "tag_key": "cams/{stream}/tag",
+    "record_key": "cams/{stream}/perception/tags",
+    "debug_image_key": "cams/{stream}/debug",
+    "detections_key": "cams/{stream}/detections",
+}
+
+
 def test_input_keys_may_be_key_expressions() -> None:
     settings = settings_from_mapping(
-        {"input_key": "rover$*/zed/*/image", "camera_info_key": "rover$*/zed/*/camera_info"}
+        {
+            "input_key": "rover$*/zed/*/image",
+            "camera_info_key": "rover$*/zed/*/camera_info",
+            **STREAM_OUTPUTS,
+        }
     )
     assert settings.input_key == "rover$*/zed/*/image"
 
@@ -360,7 +373,8 @@ def test_ros_graph_settings_that_ros_accepts() -> None:
     )
     assert settings.ros_transport == "rmw_zenoh"
     # wildcards stay fine for the bridge, whose keys are no ROS names
-    assert settings_from_mapping({"input_key": "zed/*/image"}).input_key == "zed/*/image"
+    wildcard = settings_from_mapping({"input_key": "zed/*/image", **STREAM_OUTPUTS})
+    assert wildcard.input_key == "zed/*/image"
 
 
 def test_one_input_may_be_off_but_not_both() -> None:
@@ -371,7 +385,13 @@ def test_one_input_may_be_off_but_not_both() -> None:
 
 def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
     settings = settings_from_mapping(
-        {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}
+        {
+            **STREAM_OUTPUTS,
+            "compressed_input_key": "",
+            "detections_key": "",
+            "tf_key": "",
+            "input_key": "zed/**",
+        }
     )
     assert (settings.compressed_input_key, settings.detections_key, settings.tf_key) == ("", "", "")
 

@@ -371,6 +371,8 @@ def test_camera_info_changes_are_logged_at_most_once_per_interval(
 class _RefusingPublisher:
     """Stands in for a Zenoh publisher whose every put fails."""
 
+    key = "tag"
+
     def put(self, *_args: object, **_kwargs: object) -> None:
         msg = "simulated put failure"
         raise zenoh.ZError(msg)
@@ -379,7 +381,7 @@ class _RefusingPublisher:
 def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     rig: Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rig.service, "_tag_pub", _RefusingPublisher())
+    monkeypatch.setattr(rig.service._streams[""], "_tag_pub", _RefusingPublisher())
     rig.put_raw(SCENE, seq=1)
     record = decode_record(rig.records.get(timeout=20).payload)
     assert record["seq"] == 1 and record["selected"]["tag_id"] == 7
