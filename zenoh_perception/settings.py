@@ -462,6 +462,7 @@ def _validate_keys(settings: Settings) -> None:
                 )
                 raise SettingsError(msg)
 
+
 def _validate_numbers(settings: Settings) -> None:
     for name in BOUNDS:
         check_bound(name, getattr(settings, name))
