@@ -4,6 +4,7 @@ wildcard ``input_key`` matches, answered on its own ``{stream}`` keys, with stat
 
 from __future__ import annotations
 
+import json
 import signal
 from collections.abc import Iterator
 from typing import Any
@@ -189,3 +190,43 @@ def test_a_wildcard_input_with_an_output_without_stream_is_refused(setting: str)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and setting in lines[0] and "{stream}" in lines[0], lines
+
+
+def test_echo_follows_every_streams_outputs(router: zenoh.Session, endpoint: str) -> None:
+    with running_cli(*_service(endpoint)):
+        wait_for_status(router)
+        cameras = Cameras(router, ("front", "rear"))
+        echo = (
+            "echo",
+            "-m",
+            "client",
+            "-e",
+            endpoint,
+            "--no-multicast-scouting",
+            "--tag-key",
+            "cams/{stream}/tag",
+            "--record-key",
+            "cams/{stream}/perception/tags",
+            "--json",
+            "--count",
+            "4",
+            "--timeout",
+            "60",
+        )
+        with running_cli(*echo) as proc:
+            lines = OutputLines(proc)
+            lines.wait_for("listening on")
+            # each camera counts its frames from 1: no gap, no restart across streams
+            cameras.put("front", 3, 1)
+            cameras.answer()
+            cameras.put("rear", 7, 1)
+            cameras.answer()
+            summary = lines.wait_for("records=")
+        assert "gaps=0" in summary and "restarts=0" in summary and "streams=2" in summary
+        printed = [json.loads(line) for line in lines.seen if line.startswith("{")]
+        assert {p["key"] for p in printed} == {
+            "cams/front/tag",
+            "cams/rear/tag",
+            "cams/front/perception/tags",
+            "cams/rear/perception/tags",
+        }
