@@ -15,7 +15,7 @@ Threads:
   newest-frame lane (O(1), no copy, no decoding).
 - ``workers`` worker threads (default one per core; OpenCV releases the GIL) each take the
   stream whose newest frame has waited longest, one worker per stream at a time
-  (:mod:`~zenoh_perception.service.scheduler`), and answer that frame
+  (:mod:`~zenoh_perception.service.mailbox`), and answer that frame
   (:meth:`~zenoh_perception.service.stream.Stream.handle`).
 - With ``frame_deadline_ms`` a frame the detector does not finish in time is abandoned (a
   rejection, counted with its time) and the stream's newest frame read next by a fresh
@@ -61,8 +61,8 @@ from zenoh_perception.errors import (
 from zenoh_perception.pipeline import VETO_REASONS
 from zenoh_perception.service.guard import StaleDetection
 from zenoh_perception.service.logs import kv
+from zenoh_perception.service.mailbox import Scheduler
 from zenoh_perception.service.ros_transport import RosTransport
-from zenoh_perception.service.scheduler import Scheduler
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.stream import (
     MSGPACK_ENCODING,

@@ -9,7 +9,7 @@ session, the codec, the log rate limit and a publisher two streams' keys name al
 key without ``{stream}``): a marker seen on one camera never confirms, vetoes or carries
 over to another's frame.
 
-Its newest frame waits in its :class:`~zenoh_perception.service.scheduler.Lane`; one worker
+Its newest frame waits in its :class:`~zenoh_perception.service.mailbox.Lane`; one worker
 at a time runs :meth:`Stream.handle` on it: checks the payload's size, copies it out of
 Zenoh once, decodes a zero-copy view, runs the pipeline up to the selected tag and publishes
 ``tag``, then lets the pipeline finish the frame (the veto's other detections) and publishes
@@ -45,9 +45,9 @@ from zenoh_perception.errors import (
 from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
 from zenoh_perception.service.guard import GuardedDetector
 from zenoh_perception.service.logs import kv
+from zenoh_perception.service.mailbox import Lane, Scheduler
 from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
-from zenoh_perception.service.scheduler import Lane, Scheduler
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.watchdog import IsolatedDetector
 from zenoh_perception.settings import Settings
