@@ -429,6 +429,8 @@ class PerceptionService:
         name = "" if not self.wildcard else self._name_of(role, str(sample.key_expr))
         stream = None if name is None else self._stream(name)
         if stream is None:
+            if self._stop.is_set():
+                return
             self.stats.on_received(False)
             self.stats.on_rejected(TOO_MANY_STREAMS)
             suppressed = self._gate.admit(TOO_MANY_STREAMS)
