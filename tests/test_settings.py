@@ -243,10 +243,33 @@ STREAM_OUTPUTS = {
 }
 
 
+def test_a_wildcard_input_needs_stream_outputs_and_a_wildcard_or_no_other_input() -> None:
+    with pytest.raises(SettingsError, match="record_key"):
+        settings_from_mapping(
+            {
+                **STREAM_OUTPUTS,
+                "record_key": "p/tags",
+                "input_key": "c/*",
+                "compressed_input_key": "",
+            }
+        )
+    with pytest.raises(SettingsError, match="compressed_input_key"):
+        settings_from_mapping({**STREAM_OUTPUTS, "input_key": "cams/*/image"})
+    both = settings_from_mapping(
+        {
+            **STREAM_OUTPUTS,
+            "input_key": "cams/*/image",
+            "compressed_input_key": "cams/*/image/compressed",
+        }
+    )
+    assert both.tf_key == "tf"  # one TF topic for every stream
+
+
 def test_input_keys_may_be_key_expressions() -> None:
     settings = settings_from_mapping(
         {
             "input_key": "rover$*/zed/*/image",
+            "compressed_input_key": "",
             "camera_info_key": "rover$*/zed/*/camera_info",
             **STREAM_OUTPUTS,
         }
@@ -373,7 +396,9 @@ def test_ros_graph_settings_that_ros_accepts() -> None:
     )
     assert settings.ros_transport == "rmw_zenoh"
     # wildcards stay fine for the bridge, whose keys are no ROS names
-    wildcard = settings_from_mapping({"input_key": "zed/*/image", **STREAM_OUTPUTS})
+    wildcard = settings_from_mapping(
+        {"input_key": "zed/*/image", "compressed_input_key": "", **STREAM_OUTPUTS}
+    )
     assert wildcard.input_key == "zed/*/image"
 
 

@@ -451,6 +451,16 @@ def _validate_keys(settings: Settings) -> None:
         None,
     )
     if wildcard is not None:
+        # a concrete input beside a wildcard one would be a stream named "" among the others
+        for name in ("input_key", "compressed_input_key"):
+            value = getattr(settings, name)
+            if value and not has_wildcard(value):
+                msg = (
+                    f"{name} = {value!r} is concrete while {wildcard} = "
+                    f"{getattr(settings, wildcard)!r} has wildcards: give it the same "
+                    "wildcards, or turn it off ('')"
+                )
+                raise SettingsError(msg)
         # each stream answers on keys of its own; TF is one topic whose transforms each name
         # their camera's frame
         for name in (*_OUTPUT_KEYS, *optional):
