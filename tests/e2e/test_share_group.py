@@ -79,6 +79,14 @@ def _instance(endpoint: str) -> list[str]:
         "cams/*/image",
         "--compressed-input-key",
         "",
+        "--tag-key",
+        "cams/{stream}/tag",
+        "--record-key",
+        "cams/{stream}/perception/tags",
+        "--debug-image-key",
+        "cams/{stream}/perception/debug",
+        "--detections-key",
+        "cams/{stream}/perception/detections",
         "--stats-interval-s",
         "0",
     ]
@@ -158,7 +166,7 @@ def test_instances_split_the_streams_hand_them_over_and_answer_each_frame_once(
 ) -> None:
     endpoint, session = router
     cameras = Cameras(session, CAMERAS)
-    records = Collector(session, "perception/tags")
+    records = Collector(session, "cams/*/perception/tags")
     with ExitStack() as stack:
         stack.callback(cameras.close)
         first = stack.enter_context(running_cli(*_instance(endpoint)))

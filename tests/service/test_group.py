@@ -8,9 +8,9 @@ from contextlib import contextmanager
 
 import zenoh
 
-from tests.helpers import open_session, wait_until
+from tests.helpers import wait_until
 from zenoh_perception.camera.shm import announce
-from zenoh_perception.service.group import StreamGroup, StreamSubscriptions
+from zenoh_perception.service.group import StreamGroup
 from zenoh_perception.sharing import assign, held_by
 
 KEYS = [f"cams/{name}/image" for name in ("a", "b", "c", "d")]
@@ -83,21 +83,3 @@ def test_two_members_split_the_streams_and_one_takes_all_when_the_other_leaves(
     assert one.keys == set()
     for token in tokens[1:]:
         token.undeclare()
-
-
-def test_subscriptions_follow_what_is_held() -> None:
-    got: list[str] = []
-    with open_session() as session:
-        subscriptions = StreamSubscriptions(
-            session, {"cams/*/image": lambda s: got.append(str(s.key_expr)), "": print}
-        )
-        assert subscriptions.patterns == ["cams/*/image"]
-        subscriptions.take("cams/a/image")
-        session.put("cams/a/image", b"1")
-        session.put("cams/b/image", b"2")  # not held
-        wait_until(lambda: got == ["cams/a/image"], what="the held key's sample")
-        subscriptions.release("cams/a/image")
-        subscriptions.release("cams/a/image")  # twice: nothing to do
-        session.put("cams/a/image", b"3")
-        session.put("cams/a/image/x", b"4")
-    assert got == ["cams/a/image"]

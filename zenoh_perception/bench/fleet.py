@@ -68,7 +68,14 @@ from zenoh_perception.wire.records import decode_record
 CONFIGS: Final = ((1, 1), (4, 1), (4, 2), (8, 3))
 GROUP: Final = "fleet"
 INPUT: Final = "fleet/*/image"
-RECORDS: Final = "perception/tags"
+RECORDS: Final = "fleet/*/perception/tags"
+#: Each stream's outputs: ``{stream}`` is the chunk of the camera's key that ``*`` matched.
+OUTPUTS: Final = (
+    ("--tag-key", "fleet/{stream}/tag"),
+    ("--record-key", "fleet/{stream}/perception/tags"),
+    ("--debug-image-key", "fleet/{stream}/perception/debug"),
+    ("--detections-key", "fleet/{stream}/perception/detections"),
+)
 #: After a kill or a join, frames stamped this long after it must be answered exactly once.
 HANDOVER_S: Final = 3.0
 #: Offered load of the capacity phase, in multiples of the limit.
@@ -324,7 +331,8 @@ class Fleet:
         command = [sys.executable, "-m", "zenoh_perception", "run", "-m", "client"]
         command += ["-e", self.router_b, "--no-multicast-scouting", "--share-group", GROUP]
         command += ["--input-key", INPUT, "--compressed-input-key", ""]
-        command += ["--stats-interval-s", "0", "--record-key", RECORDS]
+        command += ["--stats-interval-s", "0"]
+        command += [word for flag in OUTPUTS for word in flag]
         command += ["--cfg", f"{SHM_SETTING}:false"]
         proc = _spawn(command)
         self.instances.append(proc)

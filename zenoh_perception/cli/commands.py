@@ -391,6 +391,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from zenoh_perception.bench import overhead  # noqa: PLC0415
 
         return overhead.main(args)
+    if args.streams:
+        from zenoh_perception.bench import streams  # noqa: PLC0415
+
+        return streams.main(args)
     if args.peer is not None:
         from zenoh_perception.bench import peer  # noqa: PLC0415
 
@@ -492,6 +496,11 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         action="store_true",
         help="what the service adds to OpenCV in ms, per frame size, to tag and to record, "
         "shared-memory and plain-bytes camera",
+    )
+    group.add_argument(
+        "--streams",
+        action="store_true",
+        help="three VGA cameras at 15 Hz into one service, alone and beside an HD2K one",
     )
     group.add_argument(
         "--rate",

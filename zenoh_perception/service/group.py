@@ -224,38 +224,3 @@ class StreamGroup:
             "held": sorted(self._held),
             "changes": self._changes,
         }
-
-
-class StreamSubscriptions:
-    """``take`` and ``release`` for a :class:`StreamGroup`: one subscriber per concrete key
-    held, with the callback of the input pattern that key matches."""
-
-    def __init__(
-        self, session: zenoh.Session, callbacks: dict[str, Callable[[zenoh.Sample], None]]
-    ) -> None:
-        self._session = session
-        self._callbacks = {
-            pattern: (zenoh.KeyExpr(pattern), callback)
-            for pattern, callback in callbacks.items()
-            if pattern
-        }
-        self._subscribers: dict[str, zenoh.Subscriber[None]] = {}
-
-    @property
-    def patterns(self) -> list[str]:
-        return list(self._callbacks)
-
-    def take(self, key: str) -> None:
-        concrete = zenoh.KeyExpr(key)
-        for pattern, callback in self._callbacks.values():
-            if pattern.includes(concrete):
-                self._subscribers[key] = self._session.declare_subscriber(concrete, callback)
-                return
-
-    def release(self, key: str) -> None:
-        subscriber = self._subscribers.pop(key, None)
-        if subscriber is not None:
-            try:
-                subscriber.undeclare()  # type: ignore[no-untyped-call]
-            except zenoh.ZError as err:  # the session is already closed
-                log.debug("event=undeclare_failed %s", kv(error=err))
