@@ -8,7 +8,10 @@ Topology (every process on loopback, multicast scouting off)::
                                                        +--client-- this bench (records)
 
 Shared memory is off in every process: frames cross the links as bytes, as they would between
-machines. Router A stands for the rover (the cameras' side), router B for the base station (the
+machines. ``--fleet-shm`` turns it on everywhere (the cameras put from shared memory): the
+capacity of the instances themselves, without the copies of the transport.
+
+Router A stands for the rover (the cameras' side), router B for the base station (the
 instances' side): frames cross the A-B link only for the streams some instance holds.
 
 For each (N, M):
@@ -104,7 +107,8 @@ def _child(argv: Sequence[str]) -> int:
     stop = stop_on_signals()
     mode = "router" if args.role == "router" else "client"
     conf = loopback_config(mode=mode, listen=args.listen, connect=args.connect)
-    conf.insert_json5(SHM_SETTING, "false")
+    if not args.shm:
+        conf.insert_json5(SHM_SETTING, "false")
     with zenoh.open(conf) as s:
         if args.role == "router":
             stop.wait()
@@ -311,6 +315,7 @@ class Fleet:
 
     router_a: str
     router_b: str
+    shm: bool = False  # shared memory on in every process, the cameras' puts from it
     cameras: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     instances: list[subprocess.Popen[bytes]] = field(default_factory=list)
 
@@ -320,6 +325,7 @@ class Fleet:
             args = ["camera", "--connect", self.router_a, "--key", key]
             args += ["--resolution", resolution, "--rate", f"{rate:g}"]
             args += ["--drop"] if drop else []
+            args += ["--shm"] if self.shm else []
             self.cameras[key] = _spawn(_module_command(*args))
 
     def stop_cameras(self) -> None:
@@ -333,7 +339,7 @@ class Fleet:
         command += ["--input-key", INPUT, "--compressed-input-key", ""]
         command += ["--stats-interval-s", "0"]
         command += [word for flag in OUTPUTS for word in flag]
-        command += ["--cfg", f"{SHM_SETTING}:false"]
+        command += [] if self.shm else ["--cfg", f"{SHM_SETTING}:false"]
         proc = _spawn(command)
         self.instances.append(proc)
         return proc
@@ -509,11 +515,11 @@ def _configs(text: str | None) -> list[tuple[int, int]]:
 
 
 @contextmanager
-def _routers() -> Iterator[tuple[str, str]]:
+def _routers(*, shm: bool) -> Iterator[tuple[str, str]]:
     a, b = loopback_endpoint(), loopback_endpoint()
     with ExitStack() as stack:
         for args in (["router", "--listen", a], ["router", "--listen", b, "--connect", a]):
-            proc = _spawn(_module_command(*args))
+            proc = _spawn(_module_command(*args, *(["--shm"] if shm else [])))
             stack.callback(_stop, proc)
         yield a, b
 
@@ -539,9 +545,12 @@ def main(args: argparse.Namespace) -> int:
     limit_before = opencv_limit("HD720", 5.0)
     print(f"limit: bare OpenCV default reads {limit_before:.1f} HD720 frames/s in a loop")
     results = []
-    with _routers() as (router_a, router_b), _open_when_up(router_b) as session:
+    shm = bool(args.fleet_shm)
+    if shm:
+        print("shared memory on: frames pass as references on this machine (bytes read: ~0)")
+    with _routers(shm=shm) as (router_a, router_b), _open_when_up(router_b) as session:
         for n, m in _configs(args.fleet_configs):
-            fleet = Fleet(router_a, router_b)
+            fleet = Fleet(router_a, router_b, shm=shm)
             result = run_config(
                 session, fleet, n, m, rate=rate, limit=limit_before, window_s=window_s
             )

@@ -535,6 +535,12 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         metavar="S",
         help="with --fleet: seconds of each measured window (capacity: twice that)",
     )
+    group.add_argument(
+        "--fleet-shm",
+        action="store_true",
+        help="with --fleet: shared memory on in every process (frames pass by reference on "
+        "this machine): the instances' own capacity",
+    )
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(
         "--dataset",
