@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 
+import zenoh
+
 from tests.helpers import open_session, wait_until
 from zenoh_perception.bench.fleet import (
     CONFIGS,
@@ -48,7 +50,7 @@ def test_configurations() -> None:
 def test_bytes_received_reads_this_process_sockets(endpoint: str) -> None:
     with open_session(listen=[endpoint]) as first, open_session(connect=[endpoint]) as second:
         before = bytes_received([os.getpid()])[os.getpid()]
-        got = []
+        got: list[zenoh.Sample] = []
         subscriber = second.declare_subscriber("fleet/x", got.append)
         try:
             wait_until(lambda: bool(first.put("fleet/x", bytes(200_000)) or got), timeout=10)
