@@ -234,9 +234,45 @@ def test_keys_are_validated_naming_the_setting(values: dict[str, object], named:
         settings_from_mapping(values)
 
 
+#: Output keys of a stream each, as a wildcard input needs.
+STREAM_OUTPUTS = {
+    "tag_key": "cams/{stream}/tag",
+    "record_key": "cams/{stream}/perception/tags",
+    "debug_image_key": "cams/{stream}/debug",
+    "detections_key": "cams/{stream}/detections",
+}
+
+
+def test_a_wildcard_input_needs_stream_outputs_and_a_wildcard_or_no_other_input() -> None:
+    with pytest.raises(SettingsError, match="record_key"):
+        settings_from_mapping(
+            {
+                **STREAM_OUTPUTS,
+                "record_key": "p/tags",
+                "input_key": "c/*",
+                "compressed_input_key": "",
+            }
+        )
+    with pytest.raises(SettingsError, match="compressed_input_key"):
+        settings_from_mapping({**STREAM_OUTPUTS, "input_key": "cams/*/image"})
+    both = settings_from_mapping(
+        {
+            **STREAM_OUTPUTS,
+            "input_key": "cams/*/image",
+            "compressed_input_key": "cams/*/image/compressed",
+        }
+    )
+    assert both.tf_key == "tf"  # one TF topic for every stream
+
+
 def test_input_keys_may_be_key_expressions() -> None:
     settings = settings_from_mapping(
-        {"input_key": "rover$*/zed/*/image", "camera_info_key": "rover$*/zed/*/camera_info"}
+        {
+            "input_key": "rover$*/zed/*/image",
+            "compressed_input_key": "",
+            "camera_info_key": "rover$*/zed/*/camera_info",
+            **STREAM_OUTPUTS,
+        }
     )
     assert settings.input_key == "rover$*/zed/*/image"
 
@@ -360,7 +396,10 @@ def test_ros_graph_settings_that_ros_accepts() -> None:
     )
     assert settings.ros_transport == "rmw_zenoh"
     # wildcards stay fine for the bridge, whose keys are no ROS names
-    assert settings_from_mapping({"input_key": "zed/*/image"}).input_key == "zed/*/image"
+    wildcard = settings_from_mapping(
+        {"input_key": "zed/*/image", "compressed_input_key": "", **STREAM_OUTPUTS}
+    )
+    assert wildcard.input_key == "zed/*/image"
 
 
 def test_one_input_may_be_off_but_not_both() -> None:
@@ -371,7 +410,13 @@ def test_one_input_may_be_off_but_not_both() -> None:
 
 def test_empty_compressed_detections_and_tf_keys_turn_them_off() -> None:
     settings = settings_from_mapping(
-        {"compressed_input_key": "", "detections_key": "", "tf_key": "", "input_key": "zed/**"}
+        {
+            **STREAM_OUTPUTS,
+            "compressed_input_key": "",
+            "detections_key": "",
+            "tf_key": "",
+            "input_key": "zed/**",
+        }
     )
     assert (settings.compressed_input_key, settings.detections_key, settings.tf_key) == ("", "", "")
 
@@ -386,3 +431,23 @@ def test_verify_is_on_by_default_and_off_by_flag_or_file(tmp_path: Path) -> None
     path.write_text('verify = "no"\n')
     with pytest.raises(SettingsError, match="verify"):
         load_settings(path)
+
+
+# -- share_group ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["a/b", "*", "-x", ".x", "x" * 65, "@g", "a b", "$*"])
+def test_share_group_is_one_plain_key_chunk(name: str) -> None:
+    with pytest.raises(SettingsError, match="share_group"):
+        settings_from_mapping({"share_group": name})
+
+
+def test_share_group_names_that_are_accepted() -> None:
+    for name in ("rover", "base_station", "fleet-2.a", "0", "x" * 64):
+        assert settings_from_mapping({"share_group": name}).share_group == name
+    assert Settings().share_group == ""  # every stream, as before
+
+
+def test_share_group_needs_the_bridge_transport() -> None:
+    with pytest.raises(SettingsError, match="share_group"):
+        settings_from_mapping({"share_group": "rover", "ros_transport": "rmw_zenoh"})

@@ -36,6 +36,7 @@ import zenoh
 from zenoh_perception.detect.types import DETECTORS, dictionary_names
 from zenoh_perception.errors import IntrinsicsError, SettingsError, zenoh_error_text
 from zenoh_perception.files import MAX_TEXT_FILE_BYTES, check_nesting, read_text_file
+from zenoh_perception.sharing import GROUP_NAME
 from zenoh_perception.tags.geometry import (
     FOCAL_PX_MAX,
     FOCAL_PX_MIN,
@@ -49,7 +50,8 @@ from zenoh_perception.wire.rmw_zenoh import (
     is_node_name,
     is_relative_topic,
 )
-from zenoh_perception.wire.ros_topics import ROS_TOPICS
+from zenoh_perception.wire.ros_topics import ROS_TOPICS, Direction
+from zenoh_perception.wire.stream_keys import STREAM, has_wildcard, stream_key
 
 METRICS = tuple(Metric)
 #: When detection runs in a child process (with a frame deadline): ``on_stall``, in the
@@ -121,6 +123,13 @@ class Settings:
     camera_info_key: str = field(
         default="", metadata=_doc("key of sensor_msgs/CameraInfo CDR giving intrinsics; '' = off")
     )
+    share_group: str = field(
+        default="",
+        metadata=_doc(
+            "divide the announced camera streams with the other instances of this "
+            "group; '' = take every stream"
+        ),
+    )
     ros_package: str = field(
         default="mrover", metadata=_doc("ROS package of StarterProjectTag (type name only)")
     )
@@ -184,6 +193,19 @@ class Settings:
     detector_process: str = field(
         default="on_stall",
         metadata=_doc("with a deadline, when detection runs in a child process: on_stall | always"),
+    )
+    # Streams (one per concrete key a wildcard input matches)
+    max_streams: int = field(
+        default=16,
+        metadata=_doc("most streams served at once; frames of further keys are refused (counted)"),
+    )
+    stream_idle_s: float = field(
+        default=60.0,
+        metadata=_doc("a wildcard input's stream without a frame for this long is forgotten"),
+    )
+    workers: int = field(
+        default=0,
+        metadata=_doc("threads reading frames, each stream in one at a time; 0 = one per core"),
     )
     # Selection and closeness
     policy: str = field(default="closest", metadata=_doc("tag selection: closest | center"))
@@ -282,6 +304,9 @@ BOUNDS: Final[Mapping[str, Bound]] = {
     "max_frame_pixels": Bound(1, MAX_DIMENSION * MAX_DIMENSION),
     "frame_budget_ms": Bound(0.1, 60_000),
     "frame_deadline_ms": Bound(10, 600_000, zero="off"),
+    "max_streams": Bound(1, 4096),
+    "stream_idle_s": Bound(1, 86_400),
+    "workers": Bound(0, 4 * _cpu_count(), zero="one per core", text="[1, 4 x CPU cores]"),
     "max_range_m": Bound(0.01, 10_000),
     "tag_size_m": Bound(0.001, 100, zero="unknown"),
     "camera_fx": Bound(FOCAL_PX_MIN, FOCAL_PX_MAX, zero="unknown"),
@@ -324,6 +349,8 @@ _INPUT_KEYS: Final = ("input_key", "compressed_input_key", "camera_info_key")
 _OUTPUT_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "status_key")
 #: Outputs that "" turns off; when set, held to the same rules as the others.
 _OPTIONAL_OUTPUT_KEYS: Final = ("detections_key", "tf_key")
+#: Outputs that may hold ``{stream}`` (and, with a wildcard input, must: but for TF).
+_STREAM_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "detections_key", "tf_key")
 #: Characters a ROS frame id may hold (tf2 refuses others; a leading '/' is deprecated).
 _FRAME_PREFIX: Final = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_/.-]*")
 
@@ -355,6 +382,23 @@ def check_key(name: str, value: str, *, concrete: bool) -> str:
     return value
 
 
+def _stream_template(name: str, value: str) -> str:
+    """An output key with ``{stream}`` as a concrete key (to check it), refusing it where no
+    stream is."""
+    if STREAM not in value:
+        return value
+    if name not in _STREAM_KEYS:
+        msg = f"{name} = {value!r}: only {', '.join(_STREAM_KEYS)} may hold {STREAM!r}"
+        raise SettingsError(msg)
+    return stream_key(value, "stream")
+
+
+def _any_stream(value: str) -> str:
+    """An output key with ``{stream}`` as the key expression of every stream's key."""
+    chunks = value.split("/")
+    return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in chunks)
+
+
 def _validate_keys(settings: Settings) -> None:
     for name in (*_OUTPUT_KEYS, "liveliness_key"):
         if not getattr(settings, name):
@@ -363,6 +407,10 @@ def _validate_keys(settings: Settings) -> None:
     if not settings.input_key and not settings.compressed_input_key:
         msg = "input_key and compressed_input_key are both empty: the service needs an input"
         raise SettingsError(msg)
+    for name in _INPUT_KEYS:
+        if STREAM in getattr(settings, name):
+            msg = f"{name} = {getattr(settings, name)!r}: an input holds no {STREAM!r}"
+            raise SettingsError(msg)
     inputs = {
         name: _key_expr(name, getattr(settings, name))
         for name in _INPUT_KEYS
@@ -372,14 +420,15 @@ def _validate_keys(settings: Settings) -> None:
     optional = tuple(name for name in _OPTIONAL_OUTPUT_KEYS if getattr(settings, name))
     for name in (*_OUTPUT_KEYS, *optional, "liveliness_key"):
         value = getattr(settings, name)
-        key = _key_expr(name, value)
-        if "*" in value:
+        concrete = _stream_template(name, value)
+        _key_expr(name, concrete)
+        if "*" in concrete:
             msg = (
                 f"{name} = {value!r} must be a concrete key (no '*', '**' or '$*'): "
                 "the service publishes or declares on it"
             )
             raise SettingsError(msg)
-        outputs[name] = key
+        outputs[name] = _key_expr(name, _any_stream(value))
     for out_name in (*_OUTPUT_KEYS, *optional):
         for in_name, in_key in inputs.items():
             if outputs[out_name].intersects(in_key):
@@ -404,6 +453,32 @@ def _validate_keys(settings: Settings) -> None:
             msg = f"{name} and {seen[value]} are both {value!r}: each output needs its own key"
             raise SettingsError(msg)
         seen[value] = name
+
+    wildcard = next(
+        (n for n in ("input_key", "compressed_input_key") if has_wildcard(getattr(settings, n))),
+        None,
+    )
+    if wildcard is not None:
+        # a concrete input beside a wildcard one would be a stream named "" among the others
+        for name in ("input_key", "compressed_input_key"):
+            value = getattr(settings, name)
+            if value and not has_wildcard(value):
+                msg = (
+                    f"{name} = {value!r} is concrete while {wildcard} = "
+                    f"{getattr(settings, wildcard)!r} has wildcards: give it the same "
+                    "wildcards, or turn it off ('')"
+                )
+                raise SettingsError(msg)
+        # each stream answers on keys of its own; TF is one topic whose transforms each name
+        # their camera's frame
+        for name in (*_OUTPUT_KEYS, *optional):
+            if name in _STREAM_KEYS and name != "tf_key" and STREAM not in getattr(settings, name):
+                msg = (
+                    f"{name} = {getattr(settings, name)!r} must hold {STREAM!r}, as "
+                    f"{wildcard} = {getattr(settings, wildcard)!r} has wildcards: each stream "
+                    f"needs keys of its own (e.g. 'cams/{STREAM}/tag')"
+                )
+                raise SettingsError(msg)
 
 
 def _validate_numbers(settings: Settings) -> None:
@@ -458,11 +533,15 @@ def _validate_ros(settings: Settings) -> None:
         return
     for topic in ROS_TOPICS:  # on an rmw_zenoh graph each of these keys is a ROS topic name
         value = getattr(settings, topic.key_setting)
-        if value and not is_relative_topic(value):
+        # a camera topic may be a pattern ('*/image'), an output its stream's ('{stream}/tag')
+        name = stream_key(value, "stream")
+        if topic.direction is Direction.SUBSCRIBE:
+            name = "/".join("x" if c in ("*", "**") else c for c in name.split("/"))
+        if value and not is_relative_topic(name):
             msg = (
                 f"{topic.key_setting} = {value!r} is not a relative ROS topic name, as "
                 "ros_transport = 'rmw_zenoh' needs (tokens of letters, digits and underscores "
-                "separated by '/', no wildcards)"
+                "separated by '/'; '*' chunks only in an input, '{stream}' only in an output)"
             )
             raise SettingsError(msg)
 
@@ -476,9 +555,28 @@ def _validate_text(settings: Settings) -> None:
             raise SettingsError(msg)
 
 
+def _validate_group(settings: Settings) -> None:
+    name = settings.share_group
+    if not name:
+        return
+    if not GROUP_NAME.fullmatch(name):
+        msg = (
+            f"share_group {name!r} is not a group name (1-64 letters, digits, '_', '.' or '-', "
+            "not starting with '.' or '-')"
+        )
+        raise SettingsError(msg)
+    if settings.ros_transport == "rmw_zenoh":
+        msg = (
+            "share_group needs ros_transport = 'bridge': the group learns the streams from "
+            "the cameras' announcements on plain Zenoh keys"
+        )
+        raise SettingsError(msg)
+
+
 def _validate(settings: Settings) -> None:
     _validate_text(settings)
     _validate_keys(settings)
+    _validate_group(settings)
     check_ros_package(settings.ros_package)
     _validate_ros(settings)
     if not _FRAME_PREFIX.fullmatch(settings.tf_prefix):

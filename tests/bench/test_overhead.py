@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from zenoh_perception.bench import overhead
+from zenoh_perception.bench.runners import DICTIONARY, Baseline
 from zenoh_perception.cli import main as cli
 
 
@@ -26,6 +27,19 @@ def test_rows_give_the_excess_over_bare_in_ms_per_size_and_camera() -> None:
     assert row["record_over_bare_ms"] == pytest.approx(1.75)
     assert row["tag_ratio"] == pytest.approx(1.38)
     assert row["own_ms"] == pytest.approx(0.5)  # tag - floor - bare
+    assert row["own_record_ms"] == pytest.approx(0.75)  # record - floor - bare
+
+
+def test_report_holds_hd720_frames_of_both_kinds_to_the_goals() -> None:
+    rows = overhead.overhead_rows(
+        {"HD720": _times(4.0, 1.0, 5.2, 5.4), overhead.LOOKALIKES: _times(4.0, 1.0, 5.2, 5.6)}
+    )
+    lines = overhead.report(rows, None, 0.0).splitlines()
+    plain = [line for line in lines if line.startswith("HD720 ") and "look-alikes" not in line]
+    alike = [line for line in lines if line.startswith(overhead.LOOKALIKES)]
+    assert len(plain) == len(alike) == len(overhead.CAMERAS)
+    assert all(line.endswith("met") for line in plain)  # own 0.2 / 0.4 ms
+    assert all(line.endswith("MISSED") for line in alike)  # own to the record 0.6 ms
 
 
 def test_report_names_every_size_and_the_paced_run() -> None:
@@ -49,6 +63,15 @@ def test_report_names_every_size_and_the_paced_run() -> None:
 def test_frames_have_the_named_size() -> None:
     frames = overhead.frames_at("VGA", 2, seed=3)
     assert [f.shape for f in frames] == [(480, 640, 4)] * 2
+
+
+def test_lookalike_frames_give_the_veto_more_to_read() -> None:
+    """Frames with look-alikes hold more candidates for OpenCV than the plain ones."""
+    baseline = Baseline(DICTIONARY)
+    plain = overhead.frames_at("VGA", 6, seed=3)
+    alike = overhead.frames_at("VGA", 6, seed=3, lookalikes=True)
+    count = lambda frames: sum(len(baseline.run(f)[0]) for f in frames)  # noqa: E731
+    assert count(alike) > count(plain)
 
 
 def test_overhead_flags_parse() -> None:

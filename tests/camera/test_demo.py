@@ -174,3 +174,35 @@ def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> Non
     small = Settings(max_frame_bytes=640 * 480 * 4 - 1)
     with pytest.raises(SettingsError, match=f"is {640 * 480 * 4} bytes"):
         demo.main(loopback_config(), small, resolution="VGA", limit=1)
+
+
+def test_camera_announces_its_key_while_it_publishes(endpoint: str) -> None:
+    scenes = SceneGenerator(CameraModel.named("VGA"), seed=5).drive(2, n_tags=1)
+    tokens: list[tuple[str, str]] = []
+    with open_session(listen=[endpoint]) as session:
+        frames = Collector(session, "demo/cams/left")
+
+        def on_frame(_stamp: int, _scene: Scene) -> None:
+            # the token is there while frames are put
+            tokens.extend(
+                (str(r.ok.kind), str(r.ok.key_expr))
+                for r in session.liveliness().get("@camera/**", timeout=5)
+                if r.ok is not None
+            )
+
+        stop = threading.Event()
+        sent = publish_camera(
+            session,
+            "demo/cams/left",
+            scenes,
+            fps=1000.0,
+            cdr=True,
+            stop=stop,
+            limit=1,
+            on_frame=on_frame,
+        )
+        assert sent == 1
+        frames.get()
+        after = list(session.liveliness().get("@camera/**", timeout=5))
+    assert tokens == [("SampleKind.PUT", "@camera/demo/cams/left")]
+    assert [r for r in after if r.ok is not None] == []  # withdrawn once the camera stops

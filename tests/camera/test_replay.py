@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import io
+import queue
 import threading
 
 import pytest
+import zenoh
 
 from tests.helpers import Collector, loopback_config, open_session
 from zenoh_perception.camera.replay import (
@@ -162,3 +164,36 @@ def test_main_times_out_without_a_subscriber() -> None:
     options = ReplayOptions(key="replay/nobody", subscriber_timeout_s=0.2)
     with pytest.raises(ReplayError, match="no subscriber on 'replay/nobody'"):
         main(loopback_config(), _ListSource(3), options, threading.Event())
+
+
+def test_main_announces_its_key_before_any_subscriber_and_withdraws_it_at_the_end(
+    endpoint: str,
+) -> None:
+    """A service of a share group subscribes to a camera's key only once it sees the
+    camera's token: the replay declares it while it still waits for a subscriber."""
+    events: queue.Queue[tuple[str, str]] = queue.Queue()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        events.put((str(sample.kind), str(sample.key_expr)))
+
+    options = ReplayOptions(key="replay/cams/front", pacing=Pacing.ASAP, limit=3)
+    with open_session(listen=[endpoint]) as session:
+        watcher = session.liveliness().declare_subscriber("@camera/replay/**", on_token)
+        result: list[int] = []
+        replay = threading.Thread(
+            target=lambda: result.append(
+                main(
+                    loopback_config(connect=[endpoint]), _ListSource(3), options, threading.Event()
+                )
+            )
+        )
+        replay.start()
+        try:
+            assert events.get(timeout=10) == ("SampleKind.PUT", "@camera/replay/cams/front")
+            frames = Collector(session, "replay/cams/front")  # only now a subscriber
+            assert [frames.get().payload for _ in range(3)] == [b"0", b"1", b"2"]
+            assert events.get(timeout=10) == ("SampleKind.DELETE", "@camera/replay/cams/front")
+        finally:
+            replay.join(timeout=10)
+            watcher.undeclare()
+    assert result == [0]

@@ -19,7 +19,7 @@ from tests.helpers import (
     wait_until,
 )
 from zenoh_perception.cli import echo
-from zenoh_perception.cli.echo import Gap, SeqGaps
+from zenoh_perception.cli.echo import Gap, SeqGaps, StreamGaps, listen_key
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.tags.selection import TagMessage, TagObservation
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
@@ -196,3 +196,26 @@ def test_echo_reads_the_tag_where_the_ros_transport_puts_it() -> None:
             bad.tag_key("tag", "mrover")
     with pytest.raises(SettingsError):
         rmw.tag_key("t*", "mrover")
+
+
+def test_each_stream_has_its_own_seq_and_the_summary_adds_them_up() -> None:
+    gaps = StreamGaps()
+    # two cameras counting frames each from 1, interleaved: no gap, no restart
+    for seq in (1, 2, 3):
+        assert gaps.observe("cams/front/image", seq) is None
+        assert gaps.observe("cams/rear/image", seq) is None
+    gap = gaps.observe("cams/rear/image", 6)
+    assert gap is not None and gap.missing == 2
+    assert parse_pairs(gaps.summary()) == {
+        "records": "7",
+        "gaps": "1",
+        "missing": "2",
+        "restarts": "0",
+        "streams": "2",
+    }
+
+
+def test_an_output_key_with_stream_listens_to_every_streams() -> None:
+    assert listen_key("cams/{stream}/tag") == "cams/**/tag"
+    assert listen_key("tag_{stream}") == "tag_$*"
+    assert listen_key("tag") == "tag"

@@ -339,3 +339,69 @@ def test_bad_ros_graph_settings_exit_2_naming_the_setting(
     result = run_cli("run", "--ros-transport", "rmw_zenoh", f"{flag}={value}", timeout=60)
     assert result.returncode == 2, result.stderr
     assert named in result.stderr
+
+
+def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node: RosNode) -> None:
+    """A camera pattern ('*/image'): each camera's tag and detections under its own name
+    ('/front/tag'), TF one topic whose transforms name each camera's frame."""
+    session = node.session
+    graph = GraphCache(session)
+    flags = (
+        "--input-key",
+        "*/image",
+        "--compressed-input-key",
+        "",
+        "--tag-key",
+        "{stream}/tag",
+        "--record-key",
+        "cams/{stream}/perception/tags",
+        "--debug-image-key",
+        "{stream}/perception/debug",
+        "--detections-key",
+        "{stream}/perception/detections",
+        "--tag-size-m",
+        "0.2",
+        "--camera-fx",
+        "500",
+        "--camera-fy",
+        "500",
+        "--camera-cx",
+        "320",
+        "--camera-cy",
+        "240",
+    )
+    with running_cli(*_service(endpoint, *flags)):
+        wait_for_status(session)
+        tf = Collector(session, topic_key(0, "/tf", "tf2_msgs/msg/TFMessage", "*"))
+        for entity_id, (name, tag_id) in enumerate((("front", 3), ("rear", 9)), start=1):
+            tags = Collector(session, topic_key(0, f"/{name}/tag", TAG, TAG_HASH))
+            arrays = Collector(
+                session, topic_key(0, f"/{name}/perception/detections", DETECTIONS, "*")
+            )
+            image_key, gid = node.entity(
+                entity_id, PUBLISHER, f"/{name}/image", IMAGE, ROS2_TYPE_HASHES[IMAGE]
+            )
+            publisher = session.declare_publisher(image_key, congestion_control=_BLOCK)
+            wait_for_subscriber(publisher)
+            cdr = encode_image_cdr(_marker_frame(tag_id), "bgra8", stamp_ns=1, frame_id=name)
+            publisher.put(bytes(cdr), attachment=Attachment(1, time.time_ns(), gid).encode())
+            assert TagCodec().decode(tags.get(timeout=30).payload).tag_id == tag_id
+            array: Any = TYPESTORE.deserialize_cdr(
+                arrays.get(timeout=30).payload, "apriltag_msgs/msg/AprilTagDetectionArray"
+            )
+            assert [d.id for d in array.detections] == [tag_id]
+            assert array.header.frame_id == name
+            transforms: Any = TYPESTORE.deserialize_cdr(
+                tf.get(timeout=30).payload, "tf2_msgs/msg/TFMessage"
+            )
+            assert [t.header.frame_id for t in transforms.transforms] == [name]
+            assert [t.child_frame_id for t in transforms.transforms] == [f"tag_{tag_id}"]
+        # each camera's outputs are topics of the node under the camera's name
+        wait_until(
+            lambda: (
+                {"/front/tag", "/rear/tag", "/front/perception/detections", "/tf"}
+                <= set(_service_tokens(graph))
+            ),
+            timeout=30,
+            what="the streams' publisher tokens",
+        )

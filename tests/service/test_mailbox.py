@@ -1,65 +1,69 @@
-"""The latest-frame-wins mailbox between Zenoh's threads and the worker."""
+"""service/mailbox.py: the stream whose newest frame waited longest first, one worker per
+stream at a time, newest frame wins within a stream."""
 
 from __future__ import annotations
 
 import threading
 
-from hypothesis import given
-from hypothesis import strategies as st
-
-from zenoh_perception.service.mailbox import LatestMailbox
+from tests.helpers import wait_until
+from zenoh_perception.service.mailbox import Scheduler
 
 
-def test_mailbox_keeps_only_the_newest_and_counts_drops() -> None:
-    box: LatestMailbox[int] = LatestMailbox()
-    assert box.put(1) is False
-    assert box.put(2) is True
-    assert box.put(3) is True
-    assert box.take(0.0) == 3
-    assert box.take(0.0) is None
-    assert box.dropped == 2
+def test_the_stream_whose_frame_waited_longest_is_taken_first() -> None:
+    scheduler: Scheduler[str, int] = Scheduler()
+    lanes = {name: scheduler.lane(name) for name in ("a", "b", "c")}
+    scheduler.put(lanes["b"], 1, at_ns=30)
+    scheduler.put(lanes["a"], 2, at_ns=20)
+    scheduler.put(lanes["c"], 3, at_ns=10)
+    taken = [scheduler.take(0) for _ in range(3)]
+    assert [(t[0].owner, t[1]) for t in taken if t is not None] == [("c", 3), ("a", 2), ("b", 1)]
+    assert scheduler.take(0) is None
 
 
-def test_mailbox_wakes_a_waiting_consumer_and_close_releases_it() -> None:
-    box: LatestMailbox[str] = LatestMailbox()
-    got: list[str | None] = []
-    consumer = threading.Thread(target=lambda: got.append(box.take(10.0)))
-    consumer.start()
-    box.put("frame")
-    consumer.join(10.0)
-    assert got == ["frame"]
-    closer = threading.Thread(target=lambda: got.append(box.take(10.0)))
-    closer.start()
-    box.close()
-    closer.join(10.0)
-    assert got == ["frame", None] and not closer.is_alive()
-    assert box.put("late") is False and box.take(0.0) is None
+def test_a_stream_is_held_by_one_worker_until_done_and_its_newest_frame_wins() -> None:
+    scheduler: Scheduler[str, int] = Scheduler()
+    lane = scheduler.lane("a")
+    assert scheduler.put(lane, 1, at_ns=1) is False
+    taken = scheduler.take(0)
+    assert taken is not None and taken[1] == 1
+    assert scheduler.put(lane, 2, at_ns=2) is False
+    assert scheduler.put(lane, 3, at_ns=3) is True  # 2 was never taken: dropped
+    assert scheduler.take(0) is None  # held: no second worker on the same stream
+    assert scheduler.done(lane) is False
+    again = scheduler.take(0)
+    assert again is not None and again[1] == 3
 
 
-@given(st.lists(st.one_of(st.integers(min_value=0), st.none()), max_size=40))
-def test_any_puts_and_takes_behave_as_one_slot_that_keeps_the_newest(
-    ops: list[int | None],
-) -> None:
-    """Each int is put, each None is a take: the take gets the newest item not yet taken, and
-    every item replaced before it was taken counts as dropped."""
-    box: LatestMailbox[int] = LatestMailbox()
-    slot: int | None = None
-    dropped = 0
-    for op in ops:
-        if op is None:
-            assert box.take(0.0) == slot
-            slot = None
-        else:
-            assert box.put(op) is (slot is not None)
-            dropped += slot is not None
-            slot = op
-    assert box.dropped == dropped
-    assert box.take(0.0) == slot
+def test_a_slow_stream_leaves_the_others_to_another_worker() -> None:
+    scheduler: Scheduler[str, int] = Scheduler()
+    slow, quick = scheduler.lane("slow"), scheduler.lane("quick")
+    scheduler.put(slow, 1, at_ns=1)
+    first = scheduler.take(0)
+    assert first is not None and first[0] is slow
+    scheduler.put(slow, 2, at_ns=2)
+    scheduler.put(quick, 1, at_ns=3)
+    second = scheduler.take(0)  # the slow one is busy: the quick one goes
+    assert second is not None and second[0] is quick
 
 
-def test_take_times_out_empty_handed() -> None:
-    box: LatestMailbox[int] = LatestMailbox()
-    assert box.take(0.01) is None
-    assert not box.closed
-    box.close()
-    assert box.closed
+def test_removing_a_busy_lane_tells_its_worker_and_close_wakes_every_worker() -> None:
+    scheduler: Scheduler[str, int] = Scheduler()
+    lane = scheduler.lane("a")
+    scheduler.put(lane, 1, at_ns=1)
+    assert scheduler.take(0) is not None
+    assert scheduler.remove(lane) is False  # a worker holds it
+    assert scheduler.put(lane, 2, at_ns=2) is False  # ignored
+    assert scheduler.done(lane) is True  # the worker closes the stream
+    idle = scheduler.lane("b")
+    assert scheduler.remove(idle) is True
+    results: list[object] = []
+    workers = [
+        threading.Thread(target=lambda: results.append(scheduler.take(None))) for _ in range(2)
+    ]
+    for worker in workers:
+        worker.start()
+    scheduler.close()
+    for worker in workers:
+        worker.join(timeout=10)
+    wait_until(lambda: len(results) == 2, what="both workers woken")
+    assert results == [None, None]

@@ -25,9 +25,11 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
+from tools.rig import marker_frame
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier
+from zenoh_perception.errors import SettingsError
 from zenoh_perception.pipeline import VETO_REASONS
 from zenoh_perception.scene import render_markers
 from zenoh_perception.scene.lookalikes import lookalike_frame
@@ -371,6 +373,8 @@ def test_camera_info_changes_are_logged_at_most_once_per_interval(
 class _RefusingPublisher:
     """Stands in for a Zenoh publisher whose every put fails."""
 
+    key = "tag"
+
     def put(self, *_args: object, **_kwargs: object) -> None:
         msg = "simulated put failure"
         raise zenoh.ZError(msg)
@@ -379,7 +383,7 @@ class _RefusingPublisher:
 def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     rig: Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rig.service, "_tag_pub", _RefusingPublisher())
+    monkeypatch.setattr(rig.service._streams[""], "_tag_pub", _RefusingPublisher())
     rig.put_raw(SCENE, seq=1)
     record = decode_record(rig.records.get(timeout=20).payload)
     assert record["seq"] == 1 and record["selected"]["tag_id"] == 7
@@ -454,3 +458,50 @@ def test_the_tag_is_out_before_the_other_detections_are_judged(
     rig.put_raw(SCENE, seq=2)
     tag, record = rig.answer()
     assert tag.tag_id == 7 and record["seq"] == 2  # no record was put for the first frame
+
+
+STREAMS = Settings(
+    stats_interval_s=0,
+    input_key="cams/*/image",
+    compressed_input_key="",
+    tag_key="cams/{stream}/tag",
+    record_key="cams/{stream}/perception/tags",
+    debug_image_key="cams/{stream}/debug",
+    detections_key="cams/{stream}/detections",
+)
+
+
+def _matching(publisher: zenoh.Publisher) -> bool:
+    status = publisher.matching_status
+    return bool(getattr(status, "matching", status))
+
+
+def test_hold_and_release_subscribe_one_camera_key_at_run_time(endpoint: str) -> None:
+    with (
+        open_session(listen=[endpoint]) as service_session,
+        open_session(connect=[endpoint]) as camera,
+        PerceptionService(service_session, STREAMS, subscribe_inputs=False) as service,
+    ):
+        tags = Collector(camera, "cams/*/tag")
+        block = zenoh.CongestionControl.BLOCK
+        front = camera.declare_publisher("cams/front/image", congestion_control=block)
+        rear = camera.declare_publisher("cams/rear/image", congestion_control=block)
+        frame = marker_frame(WIDTH, HEIGHT, 5, side=120)
+        attachment = RawFrameMeta(WIDTH, HEIGHT, "bgra8", seq=1).to_msgpack()
+        service.hold("cams/front/image")
+        service.hold("cams/front/image")  # idempotent
+        assert service.held() == ["cams/front/image"]
+        wait_for_subscriber(front)
+        assert not _matching(rear)  # not held: its frames do not even reach the service
+        front.put(frame.payload, attachment=attachment)
+        answer = tags.get(timeout=20)
+        assert answer.key == "cams/front/tag" and TagCodec().decode(answer.payload).tag_id == 5
+        assert service.streams() == ["cams/front/image"]
+        service.release("cams/front/image")
+        wait_until(lambda: not _matching(front), what="the subscription gone")
+        assert service.held() == [] and service.streams() == []
+        assert service.status()["frames"]["processed"] == 1  # the totals keep the count
+        with pytest.raises(SettingsError, match="cams/\\*/image"):
+            service.hold("cams/*/image")
+        with pytest.raises(SettingsError, match="input_key"):
+            service.hold("elsewhere/image")

@@ -26,7 +26,7 @@ from typing import Any, Final, TextIO
 import numpy as np
 import zenoh
 
-from zenoh_perception.camera.shm import ShmPutter
+from zenoh_perception.camera.shm import ShmPutter, announce
 from zenoh_perception.errors import MessageDecodeError, PayloadTooLargeError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.scene import (
@@ -234,6 +234,7 @@ def publish_camera(
 
     """
     publisher = session.declare_publisher(key)
+    token = announce(session, key)  # the stream, for instances that share the streams
     putter = ShmPutter() if shm else None
     period = 1.0 / fps
     next_at = time.monotonic()
@@ -268,6 +269,7 @@ def publish_camera(
             else:
                 next_at = time.monotonic()  # rendering is slower than fps: do not try to catch up
     finally:
+        token.undeclare()  # type: ignore[no-untyped-call]
         publisher.undeclare()  # type: ignore[no-untyped-call]
     return sent
 

@@ -17,6 +17,10 @@ Without shared memory it falls back to plain puts and says so in the log.
 image_transport's compressed plugin would (on ``zed/left/image/compressed`` unless ``--key``
 says otherwise), with the frame's stamp and frame id.
 
+While it runs, the replay announces its key with a liveliness token at ``@camera/<key>``
+(:func:`~zenoh_perception.camera.shm.announce`): instances that share the streams
+(``share_group``) subscribe to it once they see that, and only the one given the stream does.
+
 A frame larger than ``--max-frame-bytes`` (the service's ``max_frame_bytes`` default) is not
 sent: the replay stops with exit 2 and says how to raise the limits, rather than feed a
 service that would refuse every such frame.
@@ -39,7 +43,7 @@ from typing import Final, TextIO
 import zenoh
 
 from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_KEY
-from zenoh_perception.camera.shm import ShmPutter
+from zenoh_perception.camera.shm import ShmPutter, announce
 from zenoh_perception.camera.sources import (
     FrameSource,
     ImageSequenceSource,
@@ -396,6 +400,9 @@ def main(
         session.declare_publisher(
             options.key, congestion_control=zenoh.CongestionControl.BLOCK
         ) as publisher,
+        # announced before the wait: a service of a share group subscribes to this key only
+        # once it has seen the announcement
+        announce(session, options.key),
     ):
         if options.wait_for_subscriber and not _wait_for_subscriber(
             publisher, timeout_s=options.subscriber_timeout_s, stop=stop, clock=clock

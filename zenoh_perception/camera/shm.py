@@ -19,6 +19,10 @@ refuses) the putter logs ``event=shm_unavailable`` once and puts plain bytes fro
 (:attr:`ShmPutter.unavailable` holds the reason); with ``strict=True`` it raises
 :class:`ShmUnavailableError` instead.
 
+Every camera of this package announces its key with :func:`announce`: a liveliness token at
+``@camera/<key>`` while it publishes, so that instances sharing the streams
+(``share_group``) learn the stream exists without receiving its frames.
+
 zenoh-python marks this API unstable (``zenoh/shm.pyi``); it is used here as of 1.10: a
 ``ZShmMut`` accepts ``bytes`` / ``bytearray`` of exactly its size, so a ``memoryview`` payload
 is turned into ``bytes`` first (one extra copy).
@@ -36,6 +40,7 @@ import zenoh.shm as zshm
 from zenoh_perception.errors import PerceptionError
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.stats import LogGate
+from zenoh_perception.sharing import camera_token_key
 
 log = logging.getLogger("zenoh_perception.camera.shm")
 
@@ -52,6 +57,12 @@ ProviderFactory = Callable[[int], zshm.ShmProvider]
 
 class ShmUnavailableError(PerceptionError):
     """Zenoh shared memory cannot be used here (no ``/dev/shm``, size refused, ...)."""
+
+
+def announce(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
+    """Declare that a camera publishes on ``key`` (undeclare it, or leave its ``with`` block,
+    when the camera stops; it vanishes with the session anyway)."""
+    return session.liveliness().declare_token(camera_token_key(key))
 
 
 def _slot_bytes(size: int) -> int:

@@ -383,10 +383,18 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.fleet:
+        from zenoh_perception.bench import fleet  # noqa: PLC0415
+
+        return fleet.main(args)
     if args.overhead:
         from zenoh_perception.bench import overhead  # noqa: PLC0415
 
         return overhead.main(args)
+    if args.streams:
+        from zenoh_perception.bench import streams  # noqa: PLC0415
+
+        return streams.main(args)
     if args.peer is not None:
         from zenoh_perception.bench import peer  # noqa: PLC0415
 
@@ -490,10 +498,48 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "shared-memory and plain-bytes camera",
     )
     group.add_argument(
+        "--streams",
+        action="store_true",
+        help="three VGA cameras at 15 Hz into one service, alone and beside an HD2K one",
+    )
+    group.add_argument(
         "--rate",
         type=float,
         metavar="HZ",
         help="with --overhead: also HD1080 at HZ, frames answered per detector",
+    )
+    group = parser.add_argument_group("several instances")
+    group.add_argument(
+        "--fleet",
+        action="store_true",
+        help="cameras, two Zenoh routers and instances of a share group as processes: "
+        "frames answered, duplicates and gaps around a kill and a join, bytes read per "
+        "instance, latency, and HD720 capacity against bare OpenCV's",
+    )
+    group.add_argument(
+        "--fleet-configs",
+        metavar="NxM,...",
+        help="cameras x instances to run (default 1x1,4x1,4x2,8x3)",
+    )
+    group.add_argument(
+        "--fleet-rate",
+        type=bounded_float(0.5, 60.0),
+        default=4.0,
+        metavar="HZ",
+        help="with --fleet: each camera's VGA rate around the kill and the join (default 4)",
+    )
+    group.add_argument(
+        "--fleet-window",
+        type=bounded_float(1.0, 600.0),
+        default=4.0,
+        metavar="S",
+        help="with --fleet: seconds of each measured window (capacity: twice that)",
+    )
+    group.add_argument(
+        "--fleet-shm",
+        action="store_true",
+        help="with --fleet: shared memory on in every process (frames pass by reference on "
+        "this machine): the instances' own capacity",
     )
     group = parser.add_argument_group("labelled dataset")
     group.add_argument(

@@ -1,6 +1,8 @@
 """``zenoh-perception echo``: print what the service publishes (``ros2 topic echo /tag`` here).
 
-Lost records show: echo follows the records' ``seq`` and prints a ``gap`` line whenever
+Keys may hold ``{stream}`` as the service's output keys do (``--tag-key 'cams/{stream}/tag'``):
+echo then listens to every stream's, each line naming its key. Lost records show: echo follows
+each stream's ``seq`` (the record names its stream) and prints a ``gap`` line whenever
 numbers are missing (a ``seq`` lower than the last one is a restart, not a gap), and on exit
 prints the totals to stderr. The ``seq`` is the camera's frame counter when the camera sends
 one (then frames the service dropped or rejected are missing too), else the service's count of
@@ -14,6 +16,7 @@ import queue
 import sys
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any, NamedTuple, TextIO
 
@@ -32,6 +35,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     topic_key,
 )
 from zenoh_perception.wire.ros_topics import ros_topic
+from zenoh_perception.wire.stream_keys import STREAM, stream_key
 from zenoh_perception.wire.text import format_decoded_record, format_tag
 
 
@@ -91,6 +95,45 @@ class SeqGaps:
         )
 
 
+class StreamGaps:
+    """A :class:`SeqGaps` per stream (at most :data:`MAX_STREAMS`; past that the oldest is
+    forgotten, its counts kept in the totals). Pure, not thread-safe."""
+
+    def __init__(self) -> None:
+        self._streams: OrderedDict[str, SeqGaps] = OrderedDict()
+        self._forgotten = SeqGaps()
+
+    def observe(self, stream: str, seq: object) -> Gap | None:
+        gaps = self._streams.get(stream)
+        if gaps is None:
+            gaps = self._streams[stream] = SeqGaps()
+            while len(self._streams) > MAX_STREAMS:
+                _, old = self._streams.popitem(last=False)
+                for name in ("records", "gaps", "missing", "restarts"):
+                    setattr(
+                        self._forgotten, name, getattr(self._forgotten, name) + getattr(old, name)
+                    )
+        self._streams.move_to_end(stream)
+        return gaps.observe(seq)
+
+    def summary(self) -> str:
+        every = [self._forgotten, *self._streams.values()]
+        total = SeqGaps()
+        for name in ("records", "gaps", "missing", "restarts"):
+            setattr(total, name, sum(getattr(g, name) for g in every))
+        streams = len(self._streams)
+        return total.summary() + (f" streams={streams}" if streams > 1 else "")
+
+
+#: Streams whose ``seq`` echo follows at once.
+MAX_STREAMS = 4096
+
+
+def listen_key(key: str) -> str:
+    """The key echo subscribes for an output key: ``{stream}`` matches every stream's."""
+    return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in key.split("/"))
+
+
 @dataclass(frozen=True, slots=True)
 class RosGraph:
     """How the service meets ROS 2 (its ``ros_transport``, ``ros_domain_id``, ``ros_namespace``)."""
@@ -108,14 +151,17 @@ class RosGraph:
 
         """
         if self.transport != "rmw_zenoh":
-            return tag_key
+            return listen_key(tag_key)
         check_bound("ros_domain_id", self.domain_id)
-        if not is_namespace(self.namespace) or not is_relative_topic(tag_key):
+        if not is_namespace(self.namespace) or not is_relative_topic(stream_key(tag_key, "stream")):
             msg = f"--ros-namespace {self.namespace!r} / --tag-key {tag_key!r}: not ROS names"
             raise SettingsError(msg)
         ros_type = ros_topic("tag").type_name(ros_package)
         return topic_key(
-            self.domain_id, fully_qualified(self.namespace, tag_key), ros_type, ANY_HASH
+            self.domain_id,
+            fully_qualified(self.namespace, listen_key(tag_key)),
+            ros_type,
+            ANY_HASH,
         )
 
 
@@ -158,7 +204,7 @@ def main(
     tag_key = (ros or RosGraph()).tag_key(tag_key, ros_package)
     lines: queue.Queue[_Line] = queue.Queue()
     stop = stop or threading.Event()
-    gaps = SeqGaps()
+    gaps = StreamGaps()
     gaps_lock = threading.Lock()
     skipped = Skipped()
 
@@ -184,7 +230,7 @@ def main(
             skip(key, error)
             return
         with gaps_lock:
-            gap = gaps.observe(record["seq"])
+            gap = gaps.observe(str(record.get("stream", key)), record["seq"])
             if gap is not None:
                 lines.put(_Line(gap.format(key, as_json=as_json), False))
             lines.put(_Line(format_decoded_record(key, record, as_json=as_json), True))
@@ -192,7 +238,7 @@ def main(
     with open_zenoh(conf) as session:
         subscribers: list[Any] = [session.declare_subscriber(tag_key, on_tag)]
         if records:
-            subscribers.append(session.declare_subscriber(record_key, on_record))
+            subscribers.append(session.declare_subscriber(listen_key(record_key), on_record))
         keys = [tag_key, record_key] if records else [tag_key]
         listening = " and ".join(repr(k) for k in keys)
         print(f"echo: listening on {listening} (Ctrl-C to stop)", file=err, flush=True)

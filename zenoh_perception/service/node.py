@@ -1,28 +1,34 @@
-"""The perception service: the thin layer that wires the pure pipeline to Zenoh.
+"""The perception service: the thin layer that wires streams, transports and the pure
+pipeline to Zenoh.
+
+Each camera is a stream (:mod:`~zenoh_perception.service.stream`): a concrete ``input_key``
+is one, declared at start; a wildcard one (``cams/*/image``) is a stream per concrete key it
+matches, made when its first frame comes (at most ``max_streams``; further keys' frames are
+refused and counted) and forgotten after ``stream_idle_s`` without a frame. By default the
+service subscribes its input keys itself; built with ``subscribe_inputs=False`` it subscribes
+only the concrete keys it is told to :meth:`PerceptionService.hold` (instances sharing
+cameras each hold theirs).
 
 Threads:
 
-- Zenoh's callback threads only stamp the arrival time and drop the sample into a
-  latest-frame-wins mailbox (O(1), no copy, no decoding).
-- One worker thread checks the payload's size, copies it out of Zenoh once, decodes a
-  zero-copy view, runs the pipeline up to the selected tag and publishes ``tag``, then lets
-  the pipeline finish the frame (the veto's other detections) and publishes the record (and
-  the debug image while it is watched).
+- Zenoh's callback threads only stamp the arrival time and leave the sample in its stream's
+  newest-frame lane (O(1), no copy, no decoding).
+- ``workers`` worker threads (default one per core; OpenCV releases the GIL) each take the
+  stream whose newest frame has waited longest, one worker per stream at a time
+  (:mod:`~zenoh_perception.service.mailbox`), and answer that frame
+  (:meth:`~zenoh_perception.service.stream.Stream.handle`).
 - With ``frame_deadline_ms`` a frame the detector does not finish in time is abandoned (a
-  rejection, counted with its time) and the newest frame read next by a fresh detector. By
-  default (``detector_process = "on_stall"``) the worker detects in-process and a watchdog
-  thread abandons a read past the deadline, leaves that worker to end on its own and starts
-  another (:mod:`~zenoh_perception.service.guard`); for a while after, frames go to a child
-  process that is killed on a stall (:mod:`~zenoh_perception.service.watchdog`), as every
-  frame does with ``"always"``.
-- One reporter thread writes the periodic stats line.
+  rejection, counted with its time) and the stream's newest frame read next by a fresh
+  detector. By default (``detector_process = "on_stall"``) detection runs in the worker and
+  a watchdog thread abandons a read past the deadline, leaves that worker to end on its own
+  and starts another (:mod:`~zenoh_perception.service.guard`); for a while after, the
+  stream's frames go to a child process that is killed on a stall
+  (:mod:`~zenoh_perception.service.watchdog`), as every frame does with ``"always"``.
+- One reporter thread writes the periodic stats line (and one per stream with a wildcard
+  input), and forgets idle streams.
 
-Everything the worker does with a sample, up to and including each publication, runs inside
-its error handling: a bad payload is a rejection counted by reason, a failure of the
-pipeline or of an encoder a ``processing_error`` counted by stage (a rejection too when it
-happens before the tag is published), a failed publication a publish error counted by
-output; the worker goes on with the next frame. Every repeating log line goes through one
-rate limit (``log_interval_s``) per event and reason.
+Every repeating log line goes through one rate limit (``log_interval_s``) per event and
+reason.
 """
 
 from __future__ import annotations
@@ -31,14 +37,14 @@ import gc
 import json
 import logging
 import math
-import struct
+import os
 import threading
 import time
-from dataclasses import asdict, dataclass
+from collections import Counter, OrderedDict
+from dataclasses import asdict
 from functools import partial
 from typing import Any, Final
 
-import cv2
 import zenoh
 
 from zenoh_perception import __version__
@@ -46,40 +52,42 @@ from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import (
     CameraInfoError,
     FrameAbandonedError,
-    FrameDecodeError,
     IntrinsicsError,
     ProcessingError,
     SessionError,
     SettingsError,
     zenoh_error_text,
 )
-from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
-from zenoh_perception.service.guard import GuardedDetector, StaleDetection
+from zenoh_perception.pipeline import VETO_REASONS
+from zenoh_perception.service.group import StreamGroup
+from zenoh_perception.service.guard import StaleDetection
 from zenoh_perception.service.logs import kv
-from zenoh_perception.service.mailbox import LatestMailbox
-from zenoh_perception.service.ros_outputs import RosOutputs
-from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
+from zenoh_perception.service.mailbox import Scheduler
+from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stats import LogGate, ServiceStats
-from zenoh_perception.service.watchdog import IsolatedDetector
-from zenoh_perception.settings import Settings
-from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
-from zenoh_perception.wire.compressed import decode_compressed_cdr
-from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
-from zenoh_perception.wire.frames import (
-    Frame,
-    check_payload_size,
-    decode_image_cdr,
-    decode_raw_frame,
-    to_bgr,
+from zenoh_perception.service.stream import (
+    MSGPACK_ENCODING,
+    Arrival,
+    CameraInfo,
+    Publishers,
+    Shared,
+    Stream,
 )
-from zenoh_perception.wire.records import FrameRecord, TagCodec
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
+from zenoh_perception.wire.records import TagCodec
+from zenoh_perception.wire.stream_keys import has_wildcard, stream_name
 
 log = logging.getLogger("zenoh_perception.service.node")
 
-MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
+__all__ = ["MSGPACK_ENCODING", "PROCESSING_ERROR", "PerceptionService", "run"]
+
 #: Rejection reason of a decoded frame the pipeline failed on (a detector bug, counted).
 PROCESSING_ERROR = ProcessingError.reason
+#: Rejection reason of a frame of a new stream while ``max_streams`` streams are served.
+TOO_MANY_STREAMS: Final = "too_many_streams"
+#: Rejection reason of a frame whose stream's outputs Zenoh refused to declare.
+STREAM_REFUSED: Final = "stream_refused"
 _POLL_S = 0.1
 #: Seconds close() waits, in all, for the service's threads to end.
 _JOIN_S: Final = 1.0
@@ -88,31 +96,40 @@ MAX_MESSAGE_SIZE_PATH: Final = "transport/link/rx/max_message_size"
 #: Room a frame message needs besides its payload: the attachment (at most 4 KiB), the key
 #: and Zenoh's own headers.
 MESSAGE_OVERHEAD_BYTES: Final = 8192
+#: Period at which idle streams are looked for, seconds (at most).
+_REAP_S: Final = 1.0
 
-# What each stage may raise on a frame it cannot handle (OpenCV, rosbags' CDR serialiser,
-# msgpack); anything else is a bug that stops the worker and makes ``run`` exit 1.
-_DETECT_ERRORS: Final = (cv2.error, ValueError)
-_ENCODE_ERRORS: Final = (struct.error, ValueError, OverflowError, TypeError)
-_DEBUG_ERRORS: Final = (cv2.error, struct.error, ValueError, OverflowError)
-
-
-@dataclass(frozen=True, slots=True)
-class _Arrival:
-    sample: zenoh.Sample
-    received_ns: int  # monotonic clock
-    wall_ns: int  # time since the epoch
-    #: Came on an rmw_zenoh key: sensor_msgs/Image CDR, its attachment rmw_zenoh's own.
-    ros_cdr: bool = False
-    compressed: bool = False  # CompressedImage CDR (the compressed camera topic)
+#: The inputs, by role: (subscription role, sample flags).
+_RAW, _ROS, _COMPRESSED = "raw", "ros", "compressed"
 
 
 class PerceptionService:
-    """Subscribes frames on ``settings.input_key`` and publishes tags; see the module doc."""
+    """Subscribes frames and publishes tags, a stream per camera; see the module doc.
+
+    Two ways to say which cameras it serves:
+
+    - ``subscribe_inputs=True`` (the default, ``run``): it subscribes ``input_key`` and
+      ``compressed_input_key`` itself (through the ROS transport), and every concrete key
+      their wildcards match is a stream.
+    - ``subscribe_inputs=False``: it subscribes no frames until told; :meth:`hold` subscribes
+      one concrete camera key (a stream) and :meth:`release` unsubscribes it and forgets its
+      stream. Everything else (outputs per stream, CameraInfo, status, liveliness) is as in
+      the default mode.
+
+    ``detector`` (tests) serves every stream, unguarded; by default each stream builds the
+    settings' detector.
+    """
 
     def __init__(
-        self, session: zenoh.Session, settings: Settings, *, detector: Detector | None = None
+        self,
+        session: zenoh.Session,
+        settings: Settings,
+        *,
+        detector: Detector | None = None,
+        subscribe_inputs: bool = True,
     ) -> None:
         self.settings = settings
+        #: The service's totals: every stream's counts, and the frames refused before any.
         self.stats = ServiceStats(
             frame_budget_ms=settings.frame_budget_ms,
             frame_deadline_ms=settings.frame_deadline_ms or None,
@@ -121,42 +138,55 @@ class PerceptionService:
         self._ros = RosTransport(session, settings)
         # Callbacks read the zid from here: asking the session while it closes raises.
         self._zid = str(session.zid())
+        self._subscribe_inputs = subscribe_inputs
         self._other_tokens = 0
         self._other_lock = threading.Lock()
         self._stop = threading.Event()
-        # With a deadline the settings' detector is guarded (service/guard.py) or runs in a
-        # child process (service/watchdog.py); a detector given here runs unguarded.
-        self._isolated: IsolatedDetector | GuardedDetector | None = None
-        self._guard: GuardedDetector | None = None
-        if detector is None and settings.frame_deadline_ms > 0:
-            factory, deadline_s = partial(detector_for, settings), settings.frame_deadline_ms / 1e3
-            if settings.detector_process == "always":
-                self._isolated = IsolatedDetector(factory, deadline_s, stop=self._stop)
-            else:
-                self._isolated = self._guard = GuardedDetector(factory, deadline_s, stop=self._stop)
-            detector = self._isolated
-        self._pipeline = Pipeline(settings, detector)
-        self._camera_info: tuple[Intrinsics, tuple[int, int]] | None = None
-        self._codec = TagCodec(settings.ros_package)
-        self._ros_outputs = RosOutputs(settings)
         self._gate = LogGate(settings.log_interval_s)
-        self._mailbox: LatestMailbox[_Arrival] = LatestMailbox()
-        #: Set when the worker thread died unexpectedly (the service then answers nothing).
+        self._scheduler: Scheduler[Stream, Arrival] = Scheduler()
+        #: Several streams: a wildcard input (a concrete one is one stream, made at start).
+        self.wildcard = has_wildcard(settings.input_key) or has_wildcard(
+            settings.compressed_input_key
+        )
+        self._shared = Shared(
+            settings=settings,
+            session=session,
+            ros=self._ros,
+            publishers=Publishers(session, self._ros),
+            scheduler=self._scheduler,
+            codec=TagCodec(settings.ros_package),
+            gate=self._gate,
+            totals=self.stats,
+            instance=self._zid,
+            stop=self._stop,
+            detector=detector,
+            named=self.wildcard,
+        )
+        self._streams: dict[str, Stream] = {}
+        self._streams_lock = threading.Lock()
+        # CameraInfos by stream name ("" for every stream), for streams made later too
+        self._camera_infos: OrderedDict[str, CameraInfo] = OrderedDict()
+        self._retired_vetoes: Counter[str] = Counter(dict.fromkeys(VETO_REASONS, 0))
+        # per held key: its subscription
+        self._held: dict[str, Any] = {}
+        self._held_lock = threading.Lock()
+        # the key expression each input role's samples match, and its stream names' source
+        self._patterns: dict[str, str] = {}
+        #: Set when a worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
-        self._debug_watched = threading.Event()
-        self._last_debug = 0.0
-        self._debug_images = 0
-        self._seq = 0
-        self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._declared: list[Any] = []
+        self._group: StreamGroup | None = None  # with share_group: the streams held
         self._threads: list[threading.Thread] = []
         self._workers: list[threading.Thread] = []
+        #: Workers whose read the watchdog abandoned (each ends on its own).
+        self._abandoned: set[int | None] = set()
         self._started = False
 
     # -- life cycle -------------------------------------------------------------------------
 
     def start(self) -> None:
-        """Declare publishers, subscribers, the status queryable and the liveliness token.
+        """Declare subscribers, the status queryable and the liveliness token (and, with a
+        concrete input, the stream's publishers).
 
         Raises:
             SessionError: Zenoh refused a declaration (e.g. the session is closed).
@@ -170,44 +200,41 @@ class PerceptionService:
         except zenoh.ZError as err:
             msg = f"cannot declare the service's keys: {zenoh_error_text(err)}"
             raise SessionError(msg) from err
+        s = self.settings
         log.info(
             "event=started %s",
             kv(
                 version=__version__,
                 zid=self._session.zid(),
-                ros_transport=self.settings.ros_transport,
-                input=self._ros.key("camera") if self.settings.input_key else "",
+                ros_transport=s.ros_transport,
+                input=self._ros.key("camera") if s.input_key else "",
                 compressed_input=(
-                    self._ros.key("compressed_camera") if self.settings.compressed_input_key else ""
+                    self._ros.key("compressed_camera") if s.compressed_input_key else ""
                 ),
-                tag=self._tag_pub.key,
-                record=self.settings.record_key,
-                detector=self.settings.detector,
-                dictionary=self.settings.dictionary,
-                policy=self.settings.policy,
-                metric=self.settings.metric,
-                max_frame_bytes=self.settings.max_frame_bytes,
-                max_frame_pixels=self.settings.max_frame_pixels,
+                tag=s.tag_key if self.wildcard else self._ros.key("tag"),
+                record=s.record_key,
+                detector=s.detector,
+                dictionary=s.dictionary,
+                policy=s.policy,
+                metric=s.metric,
+                max_frame_bytes=s.max_frame_bytes,
+                max_frame_pixels=s.max_frame_pixels,
+                workers=self._worker_count(),
+                max_streams=s.max_streams if self.wildcard else 1,
             ),
         )
 
     def _declare(self) -> None:
         s, session = self.settings, self._session
-        if self._isolated is not None:
-            self._isolated.start()
         node_token = self._ros.declare_node()
         if node_token is not None:
             self._declared.append(node_token)
-        self._tag_pub = self._ros.publisher("tag", express=True)
-        self._record_pub = session.declare_publisher(
-            s.record_key, encoding=MSGPACK_ENCODING, express=True
-        )
-        self._declared += [self._tag_pub, self._record_pub, *self._ros_outputs.declare(self._ros)]
-        self._debug_pub: TopicPublisher | None = None
-        if s.debug_image:
-            self._debug_pub = self._ros.publisher("debug_image")
-            listener = self._debug_pub.declare_matching_listener(self._on_debug_matching)
-            self._declared += [listener, self._debug_pub]
+        if not self.wildcard:
+            # one stream, there from the start: its outputs declared and its detector's
+            # child processes ready before the first frame, as a single camera's service was
+            stream = Stream("", self._shared)
+            stream.open(start_detector=True)
+            self._streams[""] = stream
         if s.camera_info_key:
             self._declared.append(self._ros.subscribe("camera_info", self._on_camera_info))
         self._declared.append(session.declare_queryable(s.status_key, self._on_status_query))
@@ -223,45 +250,81 @@ class PerceptionService:
         self._threads = [
             threading.Thread(target=self._report, name="perception-stats", daemon=True)
         ]
-        if self._guard is not None:
+        if s.frame_deadline_ms > 0 and s.detector_process != "always":
             self._threads.append(
                 threading.Thread(target=self._watch, name="perception-watchdog", daemon=True)
             )
         for thread in self._threads:
             thread.start()
-        self._start_worker()
-        # Subscribe last: every frame that arrives finds the pipeline ready.
-        on_camera, on_compressed = self._on_frame, self._on_compressed_frame
+        for _ in range(self._worker_count()):
+            self._start_worker()
+        # the key expressions whose chunks name the streams
+        if s.input_key:
+            self._patterns[_RAW] = s.input_key
+            self._patterns[_ROS] = s.input_key
+        if s.compressed_input_key:
+            self._patterns[_COMPRESSED] = s.compressed_input_key
+        if s.share_group:
+            # only the announced streams the group gives this instance, each on its key
+            self._group = StreamGroup(
+                session,
+                name=s.share_group,
+                liveliness_key=s.liveliness_key,
+                patterns=[k for k in (s.input_key, s.compressed_input_key) if k],
+                take=self.hold,
+                release=self.release,
+            )
+            self._group.start()
+            return
+        if not self._subscribe_inputs:
+            return
+        # Subscribe last: every frame that arrives finds the workers ready.
         if self._ros.rmw_zenoh:
             # raw frames (msgpack attachment) keep coming on the plain key
             if s.input_key:
-                self._declared.append(session.declare_subscriber(s.input_key, self._on_frame))
-            on_camera = self._on_ros_frame
-        if s.input_key:
-            self._declared.append(self._ros.subscribe("camera", on_camera))
+                self._declared.append(
+                    session.declare_subscriber(s.input_key, partial(self._on_input, _RAW))
+                )
+            if s.input_key:
+                self._declared.append(self._ros.subscribe("camera", partial(self._on_input, _ROS)))
+        elif s.input_key:
+            self._declared.append(self._ros.subscribe("camera", partial(self._on_input, _RAW)))
         if s.compressed_input_key:
-            self._declared.append(self._ros.subscribe("compressed_camera", on_compressed))
+            self._declared.append(
+                self._ros.subscribe("compressed_camera", partial(self._on_input, _COMPRESSED))
+            )
+
+    def _worker_count(self) -> int:
+        if self.settings.workers > 0:
+            return self.settings.workers
+        return len(_usable_cpus()) if self.wildcard or not self._subscribe_inputs else 1
 
     def close(self) -> None:
-        """Stop the worker, undeclare everything (the session itself is the caller's)."""
+        """Stop the workers, undeclare everything (the session itself is the caller's)."""
+        if self._group is not None:  # its streams first: the others take them once it is gone
+            self._group.close()
         self._stop.set()
-        self._mailbox.close()
+        self._scheduler.close()
+        with self._held_lock:
+            held, self._held = list(self._held.values()), {}
+        with self._streams_lock:
+            streams = list(self._streams.values())
         # A worker inside OpenCV is not waited for, nor one abandoned before: each ends on
         # its own (daemon threads).
-        stuck = self._guard.abandon() if self._guard is not None else None
-        current = self._workers[-1:]
+        stuck = {s.guard.abandon() for s in streams if s.guard is not None} | self._abandoned
+        current = [w for w in self._workers if w.is_alive()]
         # One deadline for them all: a worker still busy then (a frame's last OpenCV calls)
         # is left too; the process then ends without finalizing under it (signals.leave).
         deadline = time.monotonic() + _JOIN_S
-        for thread in [*self._threads, *(w for w in current if w.ident != stuck)]:
+        for thread in [*self._threads, *(w for w in current if w.ident not in stuck)]:
             thread.join(timeout=max(0.0, deadline - time.monotonic()))
-        if self._isolated is not None:
-            self._isolated.close()
-        for entity in reversed(self._declared):
+        for entity in [*reversed(self._declared), *held]:
             try:
                 entity.undeclare()
             except zenoh.ZError as err:  # session already closed
                 log.debug("event=undeclare_failed %s", kv(error=err))
+        for stream in streams:
+            stream.close()
         self._declared.clear()
         log.info("event=stopped %s", kv(**self.stats.snapshot().as_dict()["frames"]))
 
@@ -272,26 +335,141 @@ class PerceptionService:
     def __exit__(self, *_exc: object) -> None:
         self.close()
 
+    # -- the cameras served -------------------------------------------------------------------
+
+    def hold(self, stream_key: str) -> None:
+        """Subscribe the frames of the concrete key ``stream_key`` (its stream is made when
+        its first frame comes). Idempotent; thread-safe; meant for ``subscribe_inputs=False``.
+
+        ``stream_key`` is a key ``input_key`` matches (raw frames or sensor_msgs/Image CDR;
+        with ``ros_transport = "rmw_zenoh"`` the topic's rmw_zenoh key) or one
+        ``compressed_input_key`` matches (CompressedImage CDR).
+
+        Raises:
+            SettingsError: ``stream_key`` is not a concrete key either input matches.
+            SessionError: Zenoh refused the subscription.
+
+        """
+        role = self._role_of(stream_key)
+        with self._held_lock:
+            if stream_key in self._held or self._stop.is_set():
+                return
+            try:
+                self._held[stream_key] = self._session.declare_subscriber(
+                    stream_key, partial(self._on_input, role)
+                )
+            except zenoh.ZError as err:
+                msg = f"cannot subscribe {stream_key!r}: {zenoh_error_text(err)}"
+                raise SessionError(msg) from err
+
+    def release(self, stream_key: str) -> None:
+        """Unsubscribe ``stream_key`` and forget its stream (its detector state, counters and
+        publishers; a frame being answered is answered first). Idempotent; thread-safe."""
+        with self._held_lock:
+            subscriber = self._held.pop(stream_key, None)
+            if subscriber is None:
+                return
+            others = [self._name_of(self._role_of(k), k) for k in self._held]
+        try:
+            subscriber.undeclare()
+        except zenoh.ZError as err:  # session closed
+            log.debug("event=undeclare_failed %s", kv(error=err))
+        name = self._name_of(self._role_of(stream_key), stream_key)
+        if name is not None and name not in others:
+            self._retire(name)
+
+    def held(self) -> list[str]:
+        """The keys :meth:`hold` subscribed, sorted."""
+        with self._held_lock:
+            return sorted(self._held)
+
+    def streams(self) -> list[str]:
+        """The keys of the streams served now (the key each one's last frame came on)."""
+        with self._streams_lock:
+            return sorted(s.key for s in self._streams.values())
+
+    def _role_of(self, key: str) -> str:
+        """The input whose samples ``key`` carries."""
+        if "*" in key or "$" in key:
+            msg = f"{key!r} is not a concrete key"
+            raise SettingsError(msg)
+        s, concrete = self.settings, zenoh.KeyExpr(key)
+        if s.input_key:
+            if self._ros.rmw_zenoh and zenoh.KeyExpr(self._ros.key("camera")).intersects(concrete):
+                return _ROS
+            if zenoh.KeyExpr(s.input_key).intersects(concrete):
+                return _RAW
+        compressed = self._ros.key("compressed_camera") if s.compressed_input_key else ""
+        if compressed and zenoh.KeyExpr(compressed).intersects(concrete):
+            return _COMPRESSED
+        msg = f"{key!r} matches neither input_key nor compressed_input_key"
+        raise SettingsError(msg)
+
+    def _name_of(self, role: str, key: str) -> str | None:
+        """The name of the stream ``key`` (a sample's key on input ``role``) belongs to;
+        None when it matches no input."""
+        if not self.wildcard:
+            return ""
+        topic = key if role == _RAW else self._ros.topic_of(key)
+        return stream_name(self._patterns.get(role, ""), topic)
+
+    def _stream(self, name: str) -> Stream | None:
+        """The stream ``name``, made when new (None past ``max_streams``)."""
+        stream = self._streams.get(name)
+        if stream is not None:
+            return stream
+        with self._streams_lock:
+            stream = self._streams.get(name)
+            if stream is None and not self._stop.is_set():
+                if len(self._streams) >= self.settings.max_streams:
+                    return None
+                stream = self._streams[name] = Stream(name, self._shared)
+                info = self._camera_infos.get(name) or self._camera_infos.get("")
+                if info is not None:
+                    stream.use_camera_info(info)
+            return stream
+
+    def _retire(self, name: str) -> None:
+        """Forget stream ``name``: its counters stay in the totals, its vetoes too."""
+        with self._streams_lock:
+            stream = self._streams.pop(name, None)
+        if stream is None:
+            return
+        self._retired_vetoes.update(stream.vetoed)
+        if self._scheduler.remove(stream.lane):
+            stream.close()  # else the worker holding it closes it
+        log.info("event=stream_forgotten %s", kv(stream=stream.key))
+
     # -- Zenoh callbacks: O(1), never block ---------------------------------------------------
 
-    def _on_frame(self, sample: zenoh.Sample) -> None:
-        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns())
-        self.stats.on_received(self._mailbox.put(arrival))
-
-    def _on_ros_frame(self, sample: zenoh.Sample) -> None:
-        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), ros_cdr=True)
-        self.stats.on_received(self._mailbox.put(arrival))
-
-    def _on_compressed_frame(self, sample: zenoh.Sample) -> None:
-        arrival = _Arrival(sample, time.monotonic_ns(), time.time_ns(), compressed=True)
-        self.stats.on_received(self._mailbox.put(arrival))
-
-    def _on_debug_matching(self, status: zenoh.MatchingStatus) -> None:
-        if status.matching:
-            self._debug_watched.set()
-        else:
-            self._debug_watched.clear()
-        self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
+    def _on_input(self, role: str, sample: zenoh.Sample) -> None:
+        now = time.monotonic_ns()
+        arrival = Arrival(
+            sample, now, time.time_ns(), ros_cdr=role == _ROS, compressed=role == _COMPRESSED
+        )
+        name = "" if not self.wildcard else self._name_of(role, str(sample.key_expr))
+        stream = None if name is None else self._stream(name)
+        if stream is None:
+            if self._stop.is_set():
+                return
+            self.stats.on_received(False)
+            self.stats.on_rejected(TOO_MANY_STREAMS)
+            suppressed = self._gate.admit(TOO_MANY_STREAMS)
+            if suppressed is not None:
+                log.warning(
+                    "event=rejected %s",
+                    kv(
+                        reason=TOO_MANY_STREAMS,
+                        key=str(sample.key_expr),
+                        max_streams=self.settings.max_streams,
+                        suppressed=suppressed,
+                    ),
+                )
+            return
+        stream.last_ns = now
+        if not stream.key:
+            stream.key = str(sample.key_expr)
+        stream.stats.on_received(self._scheduler.put(stream.lane, arrival, now))
 
     def _on_service_token(self, sample: zenoh.Sample) -> None:
         """Another perception service's liveliness token appeared (ours is left out).
@@ -302,6 +480,8 @@ class PerceptionService:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
         if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
             return
+        if self.settings.share_group:
+            return  # the members of a group share the keys by design, one holder a stream
         with self._other_lock:
             self._other_tokens += 1
         self._log_limited(
@@ -333,15 +513,30 @@ class PerceptionService:
             return
         self.stats.on_camera_info(None)
         intrinsics = info.intrinsics
-        if (intrinsics, (info.width, info.height)) != self._camera_info:
-            self._camera_info = (intrinsics, (info.width, info.height))
-            self._pipeline.use_camera_info(intrinsics, info.width, info.height)
+        camera: CameraInfo = (intrinsics, (info.width, info.height))
+        # with a wildcard input, a CameraInfo is its stream's (named as the frames' keys
+        # are); a concrete camera_info_key's is every stream's
+        name = ""
+        if self.wildcard:
+            topic = self._ros.topic_of(str(sample.key_expr))
+            name = stream_name(self.settings.camera_info_key, topic) or ""
+        with self._streams_lock:
+            self._camera_infos[name] = camera
+            self._camera_infos.move_to_end(name)
+            while len(self._camera_infos) > self.settings.max_streams:
+                self._camera_infos.popitem(last=False)
+            targets = [
+                s for s in self._streams.values() if name in ("", s.name) or not self.wildcard
+            ]
+        changed = [stream.use_camera_info(camera) for stream in targets]
+        if any(changed):
             # A camera whose intrinsics change on every message would flood the log: the
             # line is rate-limited and the status always shows the intrinsics in use.
             self._log_limited(
                 logging.INFO,
                 "intrinsics",
                 "intrinsics",
+                **({"stream": name} if self.wildcard else {}),
                 fx=f"{intrinsics.fx:.2f}",
                 fy=f"{intrinsics.fy:.2f}",
                 cx=f"{intrinsics.cx:.2f}",
@@ -362,11 +557,11 @@ class PerceptionService:
                 logging.DEBUG, "status_reply", "status_reply_failed", error=zenoh_error_text(err)
             )
 
-    # -- worker ------------------------------------------------------------------------------
+    # -- workers ------------------------------------------------------------------------------
 
     def _start_worker(self) -> None:
         worker = threading.Thread(target=self._work, name="perception-worker", daemon=True)
-        # only the current worker and the abandoned ones still running are kept
+        # only the current workers and the abandoned ones still running are kept
         self._workers = [w for w in self._workers if w.is_alive()] + [worker]
         worker.start()
 
@@ -374,9 +569,18 @@ class PerceptionService:
         replaced = False
         try:
             while not self._stop.is_set():
-                arrival = self._mailbox.take(_POLL_S)
-                if arrival is not None:
-                    self._handle(arrival)
+                taken = self._scheduler.take(_POLL_S)
+                if taken is None:
+                    continue
+                lane, arrival = taken
+                stream = lane.owner
+                stream.worker = threading.get_ident()
+                try:
+                    stream.handle(arrival)
+                except zenoh.ZError as err:  # the stream's outputs could not be declared
+                    stream.reject(STREAM_REFUSED, SessionError(zenoh_error_text(err)))
+                if self._scheduler.done(lane):
+                    stream.close()  # forgotten while this worker answered its frame
         except StaleDetection:
             # The watchdog abandoned this thread's frame and another worker took over: end
             # without touching anything else.
@@ -388,225 +592,28 @@ class PerceptionService:
                 log.error("event=worker_died")
                 self.failed.set()
 
-    def _handle(self, arrival: _Arrival) -> None:
-        try:
-            self._process(arrival)
-        except FrameDecodeError as err:
-            self._reject(err.reason, err)
-        except FrameAbandonedError as err:
-            # No tag and no record for it; the detector was restarted for the next frame.
-            self.stats.on_abandoned(err.elapsed_ms)
-            self._reject(err.reason, err)
-        except ProcessingError as err:
-            # Failed before the tag was published: the frame is rejected.
-            self.stats.on_processing_error(err.stage)
-            self._reject(err.reason, err)
-
-    def _process(self, arrival: _Arrival) -> None:
-        """Decode, analyse and publish one frame.
-
-        Raises:
-            FrameDecodeError: the payload is refused (its ``reason`` is counted).
-            ProcessingError: the frame could not be analysed or its tag encoded.
-
-        """
-        started = time.monotonic_ns()
-        s = self.settings
-        sample = arrival.sample
-        # The size is known before the one copy out of Zenoh: an oversized frame costs nothing.
-        check_payload_size(len(sample.payload), s.max_frame_bytes)
-        payload = sample.payload.to_bytes()
-        attachment = sample.attachment
-        if arrival.compressed:
-            # colour only for a watched debug image; the detector reads grey
-            frame = decode_compressed_cdr(
-                payload, max_pixels=s.max_frame_pixels, grey=not self._debug_watched.is_set()
-            )
-            source = "compressed"
-        elif attachment is not None and not arrival.ros_cdr:
-            frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
-            source = "raw"
-        else:
-            frame = decode_image_cdr(payload, max_pixels=s.max_frame_pixels)
-            source = "cdr"
-        decoded = time.monotonic_ns()
-        try:
-            # the selected tag first: the verifier judges the other detections after its put
-            pending = self._pipeline.begin(frame)
-        except _DETECT_ERRORS as err:
-            # A detector failing on one (valid) frame must not kill the worker: status and
-            # liveliness would still say "alive" while no frame is ever answered again.
-            raise ProcessingError("detect", err) from err
-        # counted before any output is out: whoever reads one may ask the status next
-        if pending.intrinsics_mismatch:
-            self.stats.on_intrinsics_mismatch()
-            self._log_limited(
-                logging.WARNING,
-                "intrinsics_mismatch",
-                "intrinsics_mismatch",
-                frame=f"{frame.width}x{frame.height}",
-                detail="the CameraInfo in use is for another image size: its intrinsics are "
-                "left out for this frame",
-            )
-        try:
-            tag = bytes(self._codec.encode(pending.selected))
-        except _ENCODE_ERRORS as err:
-            raise ProcessingError("encode_tag", err) from err
-        self._publish(self._tag_pub, "tag", tag)
-        published = time.monotonic_ns()
-        # From here on the frame is answered: later failures are counted, not rejections.
-        try:
-            analysis = pending.finish()
-        except _DETECT_ERRORS as err:
-            self._processing_failed(ProcessingError("detect", err))
-            return
-        latency_ms = (published - arrival.received_ns) / 1e6
-        decode_ms = (decoded - started) / 1e6
-        self._seq += 1
-        record = FrameRecord(
-            stamp_ns=frame.stamp_ns if frame.stamp_ns is not None else arrival.wall_ns,
-            frame_id=frame.frame_id,
-            seq=frame.seq if frame.seq is not None else self._seq,
-            width=frame.width,
-            height=frame.height,
-            selected=analysis.selected,
-            tags=analysis.tags,
-            timing_ms={
-                "latency_ms": latency_ms,
-                "queue_ms": (started - arrival.received_ns) / 1e6,
-                "decode_ms": decode_ms,
-                "convert_ms": analysis.convert_ms,
-                "detect_ms": analysis.detect_ms,
-            },
-            source=source,
-        )
-        try:
-            self._publish(self._record_pub, "record", record.to_msgpack())
-        except _ENCODE_ERRORS as err:
-            self._processing_failed(ProcessingError("encode_record", err))
-        self._publish_ros_outputs(analysis, record.stamp_ns, frame.frame_id)
-        self.stats.on_processed(
-            latency_ms,
-            frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
-            detect_ms=analysis.detect_ms,
-        )
-        self._hint_if_tagless(bool(analysis.tags))
-        if self._debug_watched.is_set():
-            try:
-                self._publish_debug(frame, analysis, record.stamp_ns)
-            except ProcessingError as err:
-                self._processing_failed(err)
-
     def _watch(self) -> None:
         """Abandon an in-process detection past the deadline, and start another worker."""
-        guard = self._guard
-        assert guard is not None  # the thread runs only with a guard
-        while not self._stop.wait(guard.poll_s()):
-            elapsed_ms = guard.check()
-            if elapsed_ms is None:
-                continue
-            err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
-            self.stats.on_abandoned(elapsed_ms)
-            self._reject(err.reason, err)
-            self._start_worker()
-
-    def _hint_if_tagless(self, tagged: bool) -> None:
-        """Once ``no_tag_hint_s`` of frames all had no tag, say what to check (once, until a
-        tag is seen again)."""
-        now = time.monotonic()
-        if tagged or self.settings.no_tag_hint_s <= 0:
-            self._tagless_since = None
-            return
-        if self._tagless_since is None:
-            self._tagless_since = now
-        elif now - self._tagless_since >= self.settings.no_tag_hint_s:
-            self._tagless_since = math.inf  # said: quiet until a tag is seen again
-            log.info(
-                "event=no_tag_hint %s",
-                kv(
-                    seconds=self.settings.no_tag_hint_s,
-                    dictionary=self.settings.dictionary,
-                    detail="no tag in any frame: if tags are in view, run `zenoh-perception "
-                    "probe` on a recording of this camera to find their dictionary",
-                ),
-            )
-
-    def _publish_ros_outputs(self, analysis: Analysis, stamp_ns: int, frame_id: str) -> None:
-        """Every detection and the tags' transforms (see service/ros_outputs.py)."""
-        encoded, failed = self._ros_outputs.encode(analysis, stamp_ns=stamp_ns, frame_id=frame_id)
-        for err in failed:
-            self._processing_failed(err)
-        for output in encoded:
-            self._publish(output.publisher, output.name, output.payload)
-
-    def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
-        """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
-
-        Raises:
-            ProcessingError: drawing or encoding failed (stage ``debug_image``).
-
-        """
-        now = time.monotonic()
-        if (
-            self._debug_pub is None
-            or now - self._last_debug < 1.0 / self.settings.debug_image_max_hz
-        ):
-            return
-        self._last_debug = now
-        try:
-            image = annotate(
-                to_bgr(frame),
-                analysis.tags,
-                analysis.selected,
-                intrinsics=self._pipeline.intrinsics,
-                tag_size=self.settings.tag_size_for,
-            )
-            payload = bytes(
-                encode_compressed_image(
-                    image,
-                    quality=self.settings.debug_jpeg_quality,
-                    stamp_ns=stamp_ns,
-                    frame_id=frame.frame_id,
-                )
-            )
-        except _DEBUG_ERRORS as err:
-            raise ProcessingError("debug_image", err) from err
-        if self._publish(self._debug_pub, "debug_image", payload):
-            self._debug_images += 1
-
-    def _publish(
-        self, publisher: TopicPublisher | zenoh.Publisher, output: str, payload: bytes
-    ) -> bool:
-        """Put ``payload``; a failure is counted by ``output`` and logged (rate-limited)."""
-        try:
-            publisher.put(payload)
-        except zenoh.ZError as err:
-            self.stats.on_publish_error(output)
-            self._log_limited(
-                logging.WARNING,
-                f"publish:{output}",
-                "publish_failed",
-                output=output,
-                error=zenoh_error_text(err),
-            )
-            return False
-        return True
-
-    def _processing_failed(self, err: ProcessingError) -> None:
-        self.stats.on_processing_error(err.stage)
-        self._log_limited(
-            logging.WARNING,
-            f"processing:{err.stage}",
-            "processing_error",
-            stage=err.stage,
-            detail=err,
-        )
-
-    def _reject(self, reason: str, err: Exception) -> None:
-        self.stats.on_rejected(reason)
-        suppressed = self._gate.admit(reason)
-        if suppressed is not None:
-            log.warning("event=rejected %s", kv(reason=reason, suppressed=suppressed, detail=err))
+        wait = _POLL_S
+        while not self._stop.wait(wait):
+            with self._streams_lock:
+                guarded = [s for s in self._streams.values() if s.guard is not None]
+            wait = _POLL_S
+            for stream in guarded:
+                guard = stream.guard
+                assert guard is not None
+                elapsed_ms = guard.check()
+                if elapsed_ms is None:
+                    wait = min(wait, guard.poll_s())
+                    continue
+                err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
+                stream.stats.on_abandoned(elapsed_ms)
+                stream.reject(err.reason, err)
+                self._abandoned.add(stream.worker)
+                self._start_worker()
+                # the stuck worker ends on its own: the stream is free for the next frame
+                if self._scheduler.done(stream.lane):
+                    stream.close()
 
     def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
         """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
@@ -618,9 +625,16 @@ class PerceptionService:
     # -- observability -----------------------------------------------------------------------
 
     def status(self) -> dict[str, Any]:
-        """The JSON-ready status: counters, rates, latency and the effective settings."""
+        """The JSON-ready status: the totals, each stream's, and the effective settings."""
         snapshot = self.stats.snapshot().as_dict()
-        intrinsics = self._pipeline.intrinsics
+        with self._streams_lock:
+            streams = sorted(self._streams.values(), key=lambda s: s.key)
+        per_stream = [stream.status() for stream in streams]
+        vetoed = Counter(self._retired_vetoes)
+        for stream in per_stream:
+            vetoed.update(stream["vetoed_by_reason"])
+        single = streams[0] if not self.wildcard and streams else None
+        intrinsics = None if single is None else single.intrinsics
         snapshot["camera_info"]["intrinsics"] = None if intrinsics is None else asdict(intrinsics)
         return {
             "service": "zenoh-perception",
@@ -629,48 +643,92 @@ class PerceptionService:
             "worker_alive": not self.failed.is_set(),
             **snapshot,
             "liveliness": {"other_services": self._other_tokens},
-            "vetoed_by_reason": dict(self._pipeline.vetoed),
+            "group": None if self._group is None else self._group.status(),
+            "vetoed_by_reason": dict(vetoed),
             "debug_image": {
-                "watched": self._debug_watched.is_set(),
-                "published": self._debug_images,
+                "watched": any(s.debug_watched.is_set() for s in streams),
+                "published": sum(s.debug_images for s in streams),
             },
+            "streams": per_stream,
+            "held": self.held(),
             "settings": self.settings.as_dict(),
         }
 
     def _report(self) -> None:
         interval = self.settings.stats_interval_s
-        if interval <= 0:
-            return
-        while not self._stop.wait(interval):
-            status = self.status()
-            frames = status["frames"]
-            if frames["received"] == 0:
-                # a line of zeros says nothing: say what is awaited, and where
-                log.info(
-                    "event=waiting_for_frames %s",
-                    kv(key=self.settings.input_key, detail="no frame received yet"),
-                )
+        next_report = time.monotonic() + interval if interval > 0 else math.inf
+        while not self._stop.wait(min(_REAP_S, max(0.0, next_report - time.monotonic()))):
+            if self.wildcard:
+                self._reap()
+            if time.monotonic() < next_report:
                 continue
-            latency = status["latency_ms"]
-            budget = status["budget"]
+            next_report += interval
+            self._log_stats()
+
+    def _reap(self) -> None:
+        """Forget the streams idle for ``stream_idle_s``."""
+        horizon = time.monotonic_ns() - int(self.settings.stream_idle_s * 1e9)
+        with self._streams_lock:
+            idle = [name for name, s in self._streams.items() if s.last_ns < horizon]
+        for name in idle:
+            self._retire(name)
+
+    def _log_stats(self) -> None:
+        status = self.status()
+        frames = status["frames"]
+        if frames["received"] == 0:
+            # a line of zeros says nothing: say what is awaited, and where
             log.info(
-                "event=stats received=%d processed=%d dropped=%d rejected=%d fps=%.1f "
-                "latency_p50_ms=%.2f latency_p99_ms=%.2f over_budget=%d detect_ms_max=%.2f "
-                "abandoned=%d abandoned_ms_max=%.2f publish_errors=%d processing_errors=%d",
-                frames["received"],
-                frames["processed"],
-                frames["dropped"],
-                frames["rejected"],
-                status["fps"],
-                latency["p50"],
-                latency["p99"],
-                budget["over_budget"],
-                budget["detect_ms_max"],
-                budget["abandoned"],
-                budget["abandoned_ms_max"],
-                sum(status["publish_errors"].values()),
-                sum(status["processing_errors"].values()),
+                "event=waiting_for_frames %s",
+                kv(key=self.settings.input_key, detail="no frame received yet"),
             )
+            return
+        latency = status["latency_ms"]
+        budget = status["budget"]
+        log.info(
+            "event=stats received=%d processed=%d dropped=%d rejected=%d fps=%.1f "
+            "latency_p50_ms=%.2f latency_p99_ms=%.2f over_budget=%d detect_ms_max=%.2f "
+            "abandoned=%d abandoned_ms_max=%.2f publish_errors=%d processing_errors=%d",
+            frames["received"],
+            frames["processed"],
+            frames["dropped"],
+            frames["rejected"],
+            status["fps"],
+            latency["p50"],
+            latency["p99"],
+            budget["over_budget"],
+            budget["detect_ms_max"],
+            budget["abandoned"],
+            budget["abandoned_ms_max"],
+            sum(status["publish_errors"].values()),
+            sum(status["processing_errors"].values()),
+        )
+        if not self.wildcard:
+            return
+        for stream in status["streams"]:
+            frames, latency = stream["frames"], stream["latency_ms"]
+            log.info(
+                "event=stream_stats %s",
+                kv(
+                    stream=stream["stream"],
+                    received=frames["received"],
+                    processed=frames["processed"],
+                    dropped=frames["dropped"],
+                    rejected=frames["rejected"],
+                    fps=f"{stream['fps']:.1f}",
+                    latency_p50_ms=f"{latency['p50']:.2f}",
+                    latency_p99_ms=f"{latency['p99']:.2f}",
+                    abandoned=stream["budget"]["abandoned"],
+                ),
+            )
+
+
+def _usable_cpus() -> set[int]:
+    """The CPUs this process may run on."""
+    try:
+        return os.sched_getaffinity(0)
+    except AttributeError:  # not Linux
+        return set(range(os.cpu_count() or 1))
 
 
 def open_session(

@@ -10,11 +10,11 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, Protocol
 
 from zenoh_perception.errors import ProcessingError
 from zenoh_perception.pipeline import Analysis
-from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
+from zenoh_perception.service.ros_transport import TopicPublisher
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.detections import DETECTIONS_TOPIC, encode_detections
 from zenoh_perception.wire.tf import TF_TOPIC, encode_tf
@@ -35,6 +35,12 @@ class Encoded:
     payload: bytes
 
 
+class Publishers(Protocol):
+    """Where the outputs' publishers come from: the ROS transport, or a stream's outputs."""
+
+    def publisher(self, role: str, *, express: bool = False) -> TopicPublisher: ...
+
+
 class RosOutputs:
     """Declares the outputs whose key is set, and encodes a frame's payload for each."""
 
@@ -42,7 +48,7 @@ class RosOutputs:
         self._settings = settings
         self._publishers: dict[str, TopicPublisher] = {}
 
-    def declare(self, transport: RosTransport) -> list[TopicPublisher]:
+    def declare(self, transport: Publishers) -> list[TopicPublisher]:
         """Declare a publisher per output whose key is set; they are the caller's to undeclare."""
         for topic in ROS_OUTPUTS:
             if getattr(self._settings, topic.key_setting):

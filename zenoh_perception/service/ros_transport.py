@@ -11,6 +11,7 @@ source timestamp, GID). The formats are built in :mod:`zenoh_perception.wire.rmw
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -31,6 +32,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     type_hash,
 )
 from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
+from zenoh_perception.wire.stream_keys import stream_key
 
 RMW_ZENOH: str = "rmw_zenoh"
 
@@ -38,7 +40,8 @@ RMW_ZENOH: str = "rmw_zenoh"
 class TopicPublisher:
     """A Zenoh publisher of one ROS topic; with a GID, each put carries rmw_zenoh's attachment.
 
-    ``put`` is called from one thread (the service's worker).
+    ``put`` may be called from several workers at once (a TF key shared by every stream):
+    rmw_zenoh's sequence numbers are taken under a lock.
     """
 
     def __init__(
@@ -52,14 +55,17 @@ class TopicPublisher:
         self._gid = gid
         self._token = token
         self._seq = 0
+        self._seq_lock = threading.Lock()
         self.key = str(publisher.key_expr)
 
     def put(self, payload: bytes) -> None:
         if self._gid is None:
             self._publisher.put(payload)
             return
-        self._seq += 1  # rmw_zenoh's first sample is number 1
-        attachment = Attachment(self._seq, time.time_ns(), self._gid).encode()
+        with self._seq_lock:
+            self._seq += 1  # rmw_zenoh's first sample is number 1
+            seq = self._seq
+        attachment = Attachment(seq, time.time_ns(), self._gid).encode()
         self._publisher.put(payload, attachment=attachment)
 
     @property
@@ -119,22 +125,34 @@ class RosTransport:
             return None
         return self._session.liveliness().declare_token(self.node.node_token())
 
-    def key(self, role: str) -> str:
-        """The Zenoh key (expression) of topic ``role``."""
+    def key(self, role: str, stream: str = "") -> str:
+        """The Zenoh key (expression) of topic ``role``; of stream ``stream``'s topic when its
+        key setting holds ``{stream}``."""
         topic = ros_topic(role)
-        bridge_key = str(getattr(self._settings, topic.key_setting))
+        bridge_key = stream_key(str(getattr(self._settings, topic.key_setting)), stream)
         if not self.rmw_zenoh:
             return bridge_key
         hash_ = ANY_HASH if topic.any_hash else self._hash(topic)
-        return topic_key(self.node.domain_id, self._fq_topic(topic), self._type(topic), hash_)
+        fq_topic = self._fq_topic(topic, stream)
+        return topic_key(self.node.domain_id, fq_topic, self._type(topic), hash_)
 
-    def publisher(self, role: str, *, express: bool = False) -> TopicPublisher:
+    def topic_of(self, key: str) -> str:
+        """The part of ``key`` (a sample's key on one of the service's topics) that its key setting
+        matches: the key itself through the bridge; on an rmw_zenoh graph the topic name
+        relative to the node's namespace."""
+        if not self.rmw_zenoh:
+            return key
+        chunks = key.split("/")[1:-2]  # neither the domain nor the type and its hash
+        namespace = [c for c in self.node.namespace.split("/") if c]
+        return "/".join(chunks[len(namespace) :])
+
+    def publisher(self, role: str, *, express: bool = False, stream: str = "") -> TopicPublisher:
         topic = ros_topic(role)
         assert topic.direction is Direction.PUBLISH, role
         publisher = self._session.declare_publisher(
-            self.key(role), encoding=zenoh.Encoding.APPLICATION_CDR, express=express
+            self.key(role, stream), encoding=zenoh.Encoding.APPLICATION_CDR, express=express
         )
-        token = self._token(topic, PUBLISHER)
+        token = self._token(topic, PUBLISHER, stream)
         if token is None:
             return TopicPublisher(publisher)
         return TopicPublisher(
@@ -146,8 +164,20 @@ class RosTransport:
     def subscribe(self, role: str, callback: Callable[[zenoh.Sample], Any]) -> _Subscription:
         topic = ros_topic(role)
         assert topic.direction is Direction.SUBSCRIBE, role
-        subscriber = self._session.declare_subscriber(self.key(role), callback)
-        token = self._token(topic, SUBSCRIPTION)
+        return self.subscribe_key(role, self.key(role), callback)
+
+    def subscribe_key(
+        self, role: str, key: str, callback: Callable[[zenoh.Sample], Any]
+    ) -> _Subscription:
+        """Subscribe ``key`` (the key of topic ``role``, or one it matches) for ``role``.
+
+        On an rmw_zenoh graph a topic named by a pattern has no liveliness token: a ROS name
+        holds no wildcard.
+        """
+        topic = ros_topic(role)
+        subscriber = self._session.declare_subscriber(key, callback)
+        pattern = "*" in str(getattr(self._settings, topic.key_setting))
+        token = None if pattern else self._token(topic, SUBSCRIPTION)
         declared = None if token is None else self._session.liveliness().declare_token(token)
         return _Subscription(subscriber, declared)
 
@@ -157,10 +187,11 @@ class RosTransport:
     def _hash(self, topic: RosTopic) -> str:
         return type_hash(self._store, self._type(topic))
 
-    def _fq_topic(self, topic: RosTopic) -> str:
-        return fully_qualified(self.node.namespace, str(getattr(self._settings, topic.key_setting)))
+    def _fq_topic(self, topic: RosTopic, stream: str = "") -> str:
+        name = stream_key(str(getattr(self._settings, topic.key_setting)), stream)
+        return fully_qualified(self.node.namespace, name)
 
-    def _token(self, topic: RosTopic, kind: str) -> str | None:
+    def _token(self, topic: RosTopic, kind: str, stream: str = "") -> str | None:
         """The liveliness token of a new entity of the node (None in bridge mode)."""
         if not self.rmw_zenoh:
             return None
@@ -168,7 +199,7 @@ class RosTransport:
         return self.node.entity_token(
             entity_id,
             kind,
-            self._fq_topic(topic),
+            self._fq_topic(topic, stream),
             self._type(topic),
             # the token names the type's hash even where the key matches every hash
             hash_=self._hash(topic),

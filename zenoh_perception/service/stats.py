@@ -86,6 +86,9 @@ class ServiceStats:
     time (decode, convert, detect) exceeds ``frame_budget_ms`` (None: no budget) counts as
     over budget. A frame the detector did not finish within ``frame_deadline_ms`` is
     abandoned: counted with how long it ran (and rejected, by the caller).
+
+    A stream's counters have the service's as ``parent``: every event counted here is
+    counted there too, so the service's totals outlive the streams it forgets.
     """
 
     def __init__(
@@ -96,7 +99,9 @@ class ServiceStats:
         frame_budget_ms: float | None = None,
         frame_deadline_ms: float | None = None,
         fps_window_s: float = FPS_WINDOW_S,
+        parent: ServiceStats | None = None,
     ) -> None:
+        self._parent = parent
         self._lock = threading.Lock()
         self._clock = clock
         self._start = clock()
@@ -123,12 +128,16 @@ class ServiceStats:
         self._intrinsics_mismatch = 0
 
     def on_received(self, dropped_one: bool) -> None:
+        if self._parent is not None:
+            self._parent.on_received(dropped_one)
         with self._lock:
             self.received += 1
             if dropped_one:
                 self.dropped += 1
 
     def on_rejected(self, reason: str) -> None:
+        if self._parent is not None:
+            self._parent.on_rejected(reason)
         with self._lock:
             self._rejected[reason] += 1
 
@@ -137,6 +146,8 @@ class ServiceStats:
     ) -> None:
         """One frame published; ``frame_ms`` is its own time (decode, convert, detect) and
         ``detect_ms`` the detector's share."""
+        if self._parent is not None:
+            self._parent.on_processed(latency_ms, frame_ms=frame_ms, detect_ms=detect_ms)
         with self._lock:
             now = self._clock()
             self.processed += 1
@@ -150,21 +161,29 @@ class ServiceStats:
 
     def on_abandoned(self, elapsed_ms: float) -> None:
         """One frame given up after ``elapsed_ms`` of detection."""
+        if self._parent is not None:
+            self._parent.on_abandoned(elapsed_ms)
         with self._lock:
             self._abandoned += 1
             self._abandoned_ms_last = elapsed_ms
             self._abandoned_ms_max = max(self._abandoned_ms_max, elapsed_ms)
 
     def on_publish_error(self, output: str) -> None:
+        if self._parent is not None:
+            self._parent.on_publish_error(output)
         with self._lock:
             self._publish_errors[output] += 1
 
     def on_processing_error(self, stage: str) -> None:
+        if self._parent is not None:
+            self._parent.on_processing_error(stage)
         with self._lock:
             self._processing_errors[stage] += 1
 
     def on_camera_info(self, rejected_reason: str | None) -> None:
         """One CameraInfo sample, rejected for ``rejected_reason`` (None: accepted)."""
+        if self._parent is not None:
+            self._parent.on_camera_info(rejected_reason)
         with self._lock:
             self._camera_info_received += 1
             if rejected_reason is not None:
@@ -172,6 +191,8 @@ class ServiceStats:
 
     def on_intrinsics_mismatch(self) -> None:
         """One frame not of the size of the CameraInfo in use (its intrinsics left out)."""
+        if self._parent is not None:
+            self._parent.on_intrinsics_mismatch()
         with self._lock:
             self._intrinsics_mismatch += 1
 

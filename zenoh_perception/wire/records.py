@@ -111,9 +111,15 @@ class FrameRecord:
     tags: Sequence[TagObservation]
     timing_ms: Mapping[str, float]
     source: str
+    #: The concrete key the frame came on (a wildcard input has a stream per key).
+    stream: str = ""
+    #: The Zenoh id of the service that answered.
+    instance: str = ""
 
     def to_msgpack(self) -> bytes:
         record = {
+            "stream": self.stream,
+            "instance": self.instance,
             "stamp_ns": int(self.stamp_ns),
             "frame_id": self.frame_id,
             "seq": int(self.seq),
@@ -194,8 +200,9 @@ def _check_record(record: dict[Any, Any]) -> None:
     for key in _INT_KEYS:
         if not _is_int(record[key]):
             raise _bad(f"{key} is {record[key]!r}, not an integer")
-    if not isinstance(record["frame_id"], str):
-        raise _bad(f"frame_id is {record['frame_id']!r}, not a string")
+    for key in ("frame_id", "stream", "instance"):  # the last two: services since streams
+        if key in record and not isinstance(record[key], str):
+            raise _bad(f"{key} is {record[key]!r}, not a string")
     _check_message("selected", record["selected"])
     tags, timing = record["tags"], record["timing"]
     if not isinstance(tags, list):
