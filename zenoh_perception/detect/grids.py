@@ -1,0 +1,201 @@
+"""Periodic grids (checkerboards, tiled floors, grid fences) found cheaply and kept from
+OpenCV's detector.
+
+A board of squares just above OpenCV's smallest marker offers its ``ArucoDetector`` every
+square as a candidate quad: a few thousand on half an HD720 frame, each warped and read,
+which costs a few hundred milliseconds. No marker is in those squares, so the squares are
+painted over with the grey around them before OpenCV reads the frame; OpenCV still proposes
+and decides every marker elsewhere, and nothing is added.
+
+How a grid is told (on the frame at half size, in 16 px cells there):
+
+- dark and light blobs are the pixels clearly below and clearly above their neighbourhood's
+  mean (a dead band between them keeps squares that touch at a corner apart);
+- a blob is a *square* when it is small (a few pixels to a few hundred), about as wide as
+  high, fills enough of its box and holds its own centre (a square with a marker in it does
+  not: the marker is its hole);
+- a cell is a grid cell when the 3x3 cells around it hold many dark and many light squares,
+  squares cover a large part of them and no large dark shape (a marker's border, an object)
+  is among them. Only the squares centred in grid cells are painted over, so a marker beside
+  a board keeps a margin of untouched pixels around it.
+
+:class:`GridKeeper` runs this only while it pays: after a read that took long for the
+frame's size, and for as long as grids are found; plain frames cost one clock reading.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+Gray = npt.NDArray[np.uint8]
+
+#: Grey levels a pixel must be below (above) its neighbourhood's mean to be dark (light).
+_BAND = 12
+#: Side of the neighbourhood the mean is taken over, in half-size pixels.
+_MEAN_SIDE = 15
+#: Side of a cell, in half-size pixels (32 px in the frame).
+_CELL = 16
+#: A square's area (half-size pixels), side and fill of its bounding box.
+_MIN_AREA, _MAX_AREA, _MAX_SIDE, _MIN_FILL = 4, 160, 16, 0.35
+#: Squares of each shade a grid cell's 3x3 neighbourhood must hold, and the part of it they cover.
+_MIN_SQUARES, _MIN_COVER = 6, 0.3
+#: A dark blob this large (half-size pixels) is a shape, not a square: none may be near a grid cell.
+_LARGE_AREA = 400
+#: A large blob whose box holds this many squares of the other shade is a net, not a shape.
+_NET_SQUARES = 30
+#: The part of a 3x3 neighbourhood large dark shapes may cover.
+_MAX_LARGE_COVER = 0.02
+#: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper.
+_EXPENSIVE_NS_PER_PIXEL = 40.0
+_EXPENSIVE_FLOOR_S = 0.015
+
+
+class _Blobs:
+    """The 4-connected blobs of a binary picture: which are squares, and per cell of the
+    picture the squares centred there, the area they cover and the area of large blobs."""
+
+    def __init__(self, blobs: Gray, cells: tuple[int, int]) -> None:
+        count, labels, stats, centroids = cv2.connectedComponentsWithStats(blobs, connectivity=4)
+        width, height, area = stats[:, 2], stats[:, 3], stats[:, 4]
+        cx = np.clip(centroids[:, 0].astype(np.int64), 0, blobs.shape[1] - 1)
+        cy = np.clip(centroids[:, 1].astype(np.int64), 0, blobs.shape[0] - 1)
+        square = (
+            (area >= _MIN_AREA)
+            & (area <= _MAX_AREA)
+            & (width <= _MAX_SIDE)
+            & (height <= _MAX_SIDE)
+            & (np.maximum(width, height) <= 2 * np.minimum(width, height))
+            & (area >= _MIN_FILL * width * height)
+            & (labels[cy, cx] == np.arange(count))
+        )
+        square[0] = False  # the background
+        rows, cols = cells
+        self.labels = labels
+        self.square = square
+        self.stats = stats
+        self.centres = np.stack([cx[square], cy[square]], axis=1)
+        self.net = np.zeros(count, bool)
+        self.cell = np.minimum(cy // _CELL, rows - 1) * cols + np.minimum(cx // _CELL, cols - 1)
+        size = rows * cols
+        self.squares = np.bincount(self.cell[square], minlength=size).astype(np.float64)
+        self.cover = np.bincount(self.cell[square], weights=area[square], minlength=size)
+        self.large = np.zeros(size)
+
+    def weigh_large(self, other: _Blobs) -> None:
+        """Split the large blobs into nets, whose box holds many of ``other``'s squares (a
+        floor's grout and its dark tiles, a fence's wires), painted with the squares they
+        enclose, and shapes (a marker's border, an object), near which nothing is painted."""
+        x, y, width, height, area = (self.stats[:, i] for i in range(5))
+        large = np.flatnonzero(area >= _LARGE_AREA)
+        large = large[large > 0]  # not the background
+        if len(large) == 0:
+            return
+        ox, oy = other.centres[:, 0], other.centres[:, 1]
+        inside = (
+            (ox[None, :] >= x[large, None])
+            & (ox[None, :] < (x + width)[large, None])
+            & (oy[None, :] >= y[large, None])
+            & (oy[None, :] < (y + height)[large, None])
+        ).sum(axis=1)
+        net = inside >= _NET_SQUARES
+        self.net[large[net]] = True
+        shapes = large[~net]
+        self.large = np.bincount(
+            self.cell[shapes], weights=area[shapes], minlength=len(self.large)
+        ).astype(np.float64)
+
+    def painted(
+        self, grid: npt.NDArray[np.bool_], cells: npt.NDArray[Any]
+    ) -> npt.NDArray[np.bool_]:
+        """The pixels of the squares centred in a cell where ``grid`` holds, and those of
+        nets inside such cells (``cells``: the grid, one value a pixel)."""
+        squares = self.square & grid[self.cell]
+        nets = self.net[self.labels] & (cells > 0)
+        painted: npt.NDArray[np.bool_] = squares[self.labels] | nets
+        return painted
+
+
+def _around(values: npt.NDArray[Any], cells: tuple[int, int]) -> npt.NDArray[np.float64]:
+    """Per cell, the sum over its 3x3 neighbourhood (cells past the edge count as zero)."""
+    grid = values.reshape(cells).astype(np.float32)
+    summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return np.asarray(summed, np.float64).reshape(-1)
+
+
+def grid_mask(gray: Gray) -> npt.NDArray[np.bool_] | None:
+    """The pixels of ``gray`` on periodic grids' squares (a little grown), or None when
+    there are none."""
+    height, width = gray.shape[:2]
+    size = (width // 2, height // 2)
+    small = np.asarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA), np.uint8)
+    rows, cols = -(-small.shape[0] // _CELL), -(-small.shape[1] // _CELL)
+    if rows < 3 or cols < 3:
+        return None
+    mean = np.asarray(cv2.blur(small, (_MEAN_SIDE, _MEAN_SIDE)), np.uint8)
+    cells = (rows, cols)
+    dark = _Blobs(np.asarray(cv2.subtract(mean, small) > _BAND, np.uint8), cells)
+    light = _Blobs(np.asarray(cv2.subtract(small, mean) > _BAND, np.uint8), cells)
+    dark.weigh_large(light)
+    light.weigh_large(dark)
+    area = 9.0 * _CELL * _CELL
+    dark_n, light_n = _around(dark.squares, cells), _around(light.squares, cells)
+    grid = (
+        (np.maximum(dark_n, light_n) >= _MIN_SQUARES)
+        & (dark_n + light_n >= 2 * _MIN_SQUARES)
+        & (_around(dark.cover + light.cover, cells) >= _MIN_COVER * area)
+        & (_around(dark.large + light.large, cells) <= _MAX_LARGE_COVER * area)
+    )
+    if not grid.any():
+        return None
+    spread = cv2.resize(
+        grid.reshape(cells).view(np.uint8),
+        (cols * _CELL, rows * _CELL),
+        interpolation=cv2.INTER_NEAREST,
+    )
+    spread = spread[: small.shape[0], : small.shape[1]]
+    painted = dark.painted(grid, spread) | light.painted(grid, spread)
+    full = cv2.resize(painted.view(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST)
+    full = cv2.dilate(full, np.ones((3, 3), np.uint8))
+    return np.asarray(full, bool)
+
+
+def keep_grids_away(gray: Gray) -> tuple[Gray, bool]:
+    """``gray`` with its grids' squares painted the grey around them (a copy), and whether
+    there were any; ``gray`` itself when there were none."""
+    mask = grid_mask(gray)
+    if mask is None:
+        return gray, False
+    side = 2 * _MEAN_SIDE + 1
+    around = np.asarray(cv2.blur(gray, (side, side)), np.uint8)
+    out = gray.copy()
+    np.copyto(out, around, where=mask)
+    return out, True
+
+
+class GridKeeper:
+    """Whether to look for grids before a whole-frame read, and the frame to read.
+
+    Armed after a read that cost more than about 40 ns a pixel (15 ms at least) and for as
+    long as grids are found; a frame read meanwhile without a grid disarms it.
+    """
+
+    def __init__(self) -> None:
+        self.armed = False
+        self._found = False
+
+    def prepare(self, gray: Gray) -> Gray:
+        """The frame OpenCV should read: ``gray``, or a copy with its grids painted over."""
+        self._found = False
+        if not self.armed:
+            return gray
+        image, self._found = keep_grids_away(gray)
+        return image
+
+    def record(self, seconds: float, pixels: int) -> None:
+        """After the read of a frame of ``pixels`` that took ``seconds``."""
+        budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
+        self.armed = self._found or seconds > budget
