@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import Final, Protocol, TypeVar
+from typing import Any, Final, Protocol, TypeVar
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.bench.framesets import BoardFrame
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.detect.factory import make_detector
@@ -124,3 +125,34 @@ def compare(
             tallies[k].add(scene, detections, ms)
         tick(progress, label)
     return tallies
+
+
+def board_case(
+    frames: Sequence[BoardFrame],
+    after: Image,
+    progress: Progress | None,
+    settings: Settings | None = None,
+) -> dict[str, Any]:
+    """OpenCV's default and the service's detector (``settings``, default: the service's
+    defaults) on the board frames, one after the other as a storm, then on ``after``, a
+    good frame: per frame the milliseconds and tags found of each; the good frame's time."""
+    runners = pair(DICTIONARY, settings if settings is not None else Settings())
+    rows = []
+    for index, frame in enumerate(frames):
+        row: dict[str, Any] = {"kind": frame.kind, "square_px": frame.square}
+        for name in rotation(PAIR, index):
+            detections, ms = runners[name].run(frame.image)
+            ids = {d.tag_id for d in detections}
+            row[name] = {
+                "ms": ms,
+                "found": len(ids & frame.ids),
+                "false": len(ids - frame.ids),
+                "tags": len(frame.ids),
+            }
+        rows.append(row)
+        tick(progress, "boards")
+    good = {}
+    for name in PAIR:
+        _, ms = runners[name].run(after)
+        good[name] = ms
+    return {"frames": rows, "after_storm_ms": good}

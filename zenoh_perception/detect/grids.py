@@ -40,14 +40,21 @@ _MEAN_SIDE = 15
 #: Side of a cell, in half-size pixels (32 px in the frame).
 _CELL = 16
 #: A square's area (half-size pixels), side and fill of its bounding box.
-_MIN_AREA, _MAX_AREA, _MAX_SIDE, _MIN_FILL = 4, 160, 16, 0.35
+_MIN_AREA, _MAX_AREA, _MAX_SIDE, _MIN_FILL = 4, 300, 20, 0.35
 #: Squares of each shade a grid cell's 3x3 neighbourhood must hold, and the part of it they cover.
-_MIN_SQUARES, _MIN_COVER = 6, 0.3
-#: A dark blob this large (half-size pixels) is a shape, not a square: none may be near a grid cell.
+_MIN_SQUARES, _MIN_COVER = 6, 0.2
+#: Where both shades have squares, the fewer are at least this share of the more.
+_BALANCE = 0.5
+#: A blob this large (half-size pixels) is a shape or a net, not a square.
 _LARGE_AREA = 400
+#: A net's area is at most this many times the area of the squares it encloses.
+_NET_SHARE = 2.0
+#: The margin of a square's box (a fraction of its side) outside which another shade's blob
+#: may be centred; inside it, the square has a hole.
+_HOLE_MARGIN = 0.2
 #: A large blob whose box holds this many squares of the other shade is a net, not a shape.
 _NET_SQUARES = 30
-#: The part of a 3x3 neighbourhood large dark shapes may cover.
+#: The part of a 3x3 neighbourhood large shapes may cover.
 _MAX_LARGE_COVER = 0.02
 #: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper.
 _EXPENSIVE_NS_PER_PIXEL = 40.0
@@ -77,13 +84,67 @@ class _Blobs:
         self.labels = labels
         self.square = square
         self.stats = stats
-        self.centres = np.stack([cx[square], cy[square]], axis=1)
+        self.cx, self.cy = cx, cy
+        # every blob's centre, one pixel each, summed: how many centres lie in a box
+        points = np.zeros(blobs.shape, np.uint8)
+        points[cy[1:], cx[1:]] = 1
+        self.centre_sums = np.asarray(cv2.integral(points), np.int32)
         self.net = np.zeros(count, bool)
         self.cell = np.minimum(cy // _CELL, rows - 1) * cols + np.minimum(cx // _CELL, cols - 1)
         size = rows * cols
         self.squares = np.bincount(self.cell[square], minlength=size).astype(np.float64)
         self.cover = np.bincount(self.cell[square], weights=area[square], minlength=size)
         self.large = np.zeros(size)
+        self.holed = np.zeros(count, bool)
+
+    def drop_holed(self, other: _Blobs) -> None:
+        """Squares with a blob of ``other``'s shade centred in the middle of their box are not
+        squares: a marker's border with its bits, a board's square with a marker in it."""
+        x, y, width, height = (self.stats[:, i] for i in range(4))
+        left = x + (width * _HOLE_MARGIN).astype(np.int64)
+        top = y + (height * _HOLE_MARGIN).astype(np.int64)
+        right = x + width - (width * _HOLE_MARGIN).astype(np.int64)
+        bottom = y + height - (height * _HOLE_MARGIN).astype(np.int64)
+        sums = other.centre_sums
+        inside = sums[bottom, right] - sums[top, right] - sums[bottom, left] + sums[top, left]
+        holed = self.square & (inside > 0)
+        self.holed = holed
+        if not holed.any():
+            return
+        self.square &= ~holed
+        self._count()
+
+    def _count(self) -> None:
+        """Per cell, the squares centred there and the area they cover."""
+        size = len(self.squares)
+        area = self.stats[:, 4]
+        self.squares = np.bincount(self.cell[self.square], minlength=size).astype(np.float64)
+        weights = area[self.square]
+        self.cover = np.bincount(self.cell[self.square], weights=weights, minlength=size)
+
+    def drop_enclosed(self, other: _Blobs) -> None:
+        """Squares enclosed by one blob of ``other``'s shade that is not a net are not squares
+        of a grid: a marker's bits inside its border. A grid's square meets a different blob
+        of the other shade on each side (or a net: a floor's tiles in their grout)."""
+        x, y, width, height = (self.stats[:, i] for i in range(4))
+        rows, cols = self.labels.shape
+        left, right = np.clip(x - 2, 0, cols - 1), np.clip(x + width + 1, 0, cols - 1)
+        top, bottom = np.clip(y - 2, 0, rows - 1), np.clip(y + height + 1, 0, rows - 1)
+        around = np.stack(
+            [
+                other.labels[self.cy, left],
+                other.labels[self.cy, right],
+                other.labels[top, self.cx],
+                other.labels[bottom, self.cx],
+            ],
+            axis=1,
+        )
+        same = (around[:, :, None] == around[:, None, :]).sum(axis=2)
+        enclosing = (around > 0) & ~other.net[around] & (same >= 3)
+        enclosed = self.square & enclosing.any(axis=1)
+        if enclosed.any():
+            self.square &= ~enclosed
+            self._count()
 
     def weigh_large(self, other: _Blobs) -> None:
         """Split the large blobs into nets, whose box holds many of ``other``'s squares (a
@@ -92,21 +153,39 @@ class _Blobs:
         x, y, width, height, area = (self.stats[:, i] for i in range(5))
         large = np.flatnonzero(area >= _LARGE_AREA)
         large = large[large > 0]  # not the background
+        # a small blob with a hole (a marker, its bits in its border) is a shape too
+        holed = np.flatnonzero(self.holed)
+        self.large = np.bincount(
+            self.cell[holed], weights=area[holed], minlength=len(self.large)
+        ).astype(np.float64)
         if len(large) == 0:
             return
-        ox, oy = other.centres[:, 0], other.centres[:, 1]
+        ox, oy = other.cx[other.square], other.cy[other.square]
         inside = (
             (ox[None, :] >= x[large, None])
             & (ox[None, :] < (x + width)[large, None])
             & (oy[None, :] >= y[large, None])
             & (oy[None, :] < (y + height)[large, None])
-        ).sum(axis=1)
-        net = inside >= _NET_SQUARES
+        )
+        enclosed = inside.astype(np.float64) @ other.stats[other.square, 4].astype(np.float64)
+        # a net is thin between what it encloses; a page's margin around a board is not
+        net = (inside.sum(axis=1) >= _NET_SQUARES) & (area[large] <= _NET_SHARE * enclosed)
         self.net[large[net]] = True
         shapes = large[~net]
-        self.large = np.bincount(
+        self.large += np.bincount(
             self.cell[shapes], weights=area[shapes], minlength=len(self.large)
-        ).astype(np.float64)
+        )
+
+    def net_cells(self) -> npt.NDArray[np.float64]:
+        """Per cell, 1 where a net's pixels cover a tenth of it, else 0."""
+        if not self.net.any():
+            return np.zeros(len(self.squares))
+        rows, cols = self.labels.shape
+        cell_rows, cell_cols = -(-rows // _CELL), -(-cols // _CELL)
+        padded = np.zeros((cell_rows * _CELL, cell_cols * _CELL), np.uint8)
+        padded[:rows, :cols] = self.net[self.labels]
+        share = cv2.resize(padded, (cell_cols, cell_rows), interpolation=cv2.INTER_AREA)
+        return (np.asarray(share, np.float64).reshape(-1) >= 0.1).astype(np.float64)
 
     def painted(
         self, grid: npt.NDArray[np.bool_], cells: npt.NDArray[Any]
@@ -139,12 +218,25 @@ def grid_mask(gray: Gray) -> npt.NDArray[np.bool_] | None:
     cells = (rows, cols)
     dark = _Blobs(np.asarray(cv2.subtract(mean, small) > _BAND, np.uint8), cells)
     light = _Blobs(np.asarray(cv2.subtract(small, mean) > _BAND, np.uint8), cells)
+    dark.drop_holed(light)
+    light.drop_holed(dark)
     dark.weigh_large(light)
     light.weigh_large(dark)
+    dark.drop_enclosed(light)
+    light.drop_enclosed(dark)
     area = 9.0 * _CELL * _CELL
     dark_n, light_n = _around(dark.squares, cells), _around(light.squares, cells)
+    dark_net, light_net = _around(dark.net_cells(), cells), _around(light.net_cells(), cells)
+    # both shades alternate: squares of each, or squares of one in a net of the other (tiles
+    # in their grout); a board of one shade's squares alone (a ChArUco board, whose light
+    # squares hold markers) is left to OpenCV
+    alternate = (
+        (np.minimum(dark_n, light_n) >= _BALANCE * np.maximum(dark_n, light_n))
+        | ((dark_net > 0) & (light_n >= _MIN_SQUARES))
+        | ((light_net > 0) & (dark_n >= _MIN_SQUARES))
+    )
     grid = (
-        (np.maximum(dark_n, light_n) >= _MIN_SQUARES)
+        alternate
         & (dark_n + light_n >= 2 * _MIN_SQUARES)
         & (_around(dark.cover + light.cover, cells) >= _MIN_COVER * area)
         & (_around(dark.large + light.large, cells) <= _MAX_LARGE_COVER * area)
