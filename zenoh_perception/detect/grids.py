@@ -37,6 +37,9 @@ Gray = npt.NDArray[np.uint8]
 _BAND = 12
 #: Side of the neighbourhood the mean is taken over, in half-size pixels.
 _MEAN_SIDE = 15
+#: Frames smaller than VGA are left whole: OpenCV reads them quickly whatever they show, and
+#: at half size their markers are too few pixels to be told from squares.
+_MIN_PIXELS = 640 * 480
 #: Side of a cell, in half-size pixels (32 px in the frame).
 _CELL = 16
 #: A square's area (half-size pixels), side and fill of its bounding box.
@@ -209,6 +212,8 @@ def grid_mask(gray: Gray) -> npt.NDArray[np.bool_] | None:
     """The pixels of ``gray`` on periodic grids' squares (a little grown), or None when
     there are none."""
     height, width = gray.shape[:2]
+    if height * width < _MIN_PIXELS:
+        return None
     size = (width // 2, height // 2)
     small = np.asarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA), np.uint8)
     rows, cols = -(-small.shape[0] // _CELL), -(-small.shape[1] // _CELL)
@@ -255,21 +260,32 @@ def grid_mask(gray: Gray) -> npt.NDArray[np.bool_] | None:
     return np.asarray(full, bool)
 
 
-def keep_grids_away(gray: Gray) -> tuple[Gray, bool]:
-    """``gray`` with its grids' squares painted the grey around them (a copy), and whether
-    there were any; ``gray`` itself when there were none."""
+def keep_grids_away(gray: Gray) -> tuple[Gray, npt.NDArray[np.bool_] | None]:
+    """``gray`` with its grids' squares painted the grey around them (a copy) and the
+    painted pixels; ``gray`` itself and None when there were none."""
     mask = grid_mask(gray)
     if mask is None:
-        return gray, False
+        return gray, None
     side = 2 * _MEAN_SIDE + 1
     around = np.asarray(cv2.blur(gray, (side, side)), np.uint8)
     out = gray.copy()
     np.copyto(out, around, where=mask)
-    return out, True
+    return out, mask
+
+
+def on_painted(corners: npt.NDArray[np.float32], mask: npt.NDArray[np.bool_]) -> bool:
+    """Whether a marker's corners or centre lie on painted pixels: painting made it, or
+    changed it; it is not reported."""
+    height, width = mask.shape
+    points = np.vstack([corners, corners.mean(axis=0, keepdims=True)])
+    cols = np.clip(np.rint(points[:, 0]).astype(np.int64), 0, width - 1)
+    rows = np.clip(np.rint(points[:, 1]).astype(np.int64), 0, height - 1)
+    return bool(mask[rows, cols].any())
 
 
 class GridKeeper:
-    """Whether to look for grids before a whole-frame read, and the frame to read.
+    """Whether to look for grids before a whole-frame read, the frame to read, and which of
+    the markers read there to keep.
 
     Armed after a read that cost more than about 40 ns a pixel (15 ms at least) and for as
     long as grids are found; a frame read meanwhile without a grid disarms it.
@@ -277,17 +293,21 @@ class GridKeeper:
 
     def __init__(self) -> None:
         self.armed = False
-        self._found = False
+        self._mask: npt.NDArray[np.bool_] | None = None
 
     def prepare(self, gray: Gray) -> Gray:
         """The frame OpenCV should read: ``gray``, or a copy with its grids painted over."""
-        self._found = False
+        self._mask = None
         if not self.armed:
             return gray
-        image, self._found = keep_grids_away(gray)
+        image, self._mask = keep_grids_away(gray)
         return image
+
+    def keep(self, corners: npt.NDArray[np.float32]) -> bool:
+        """Whether a marker read on the prepared frame is reported (not on painted pixels)."""
+        return self._mask is None or not on_painted(corners, self._mask)
 
     def record(self, seconds: float, pixels: int) -> None:
         """After the read of a frame of ``pixels`` that took ``seconds``."""
         budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
-        self.armed = self._found or seconds > budget
+        self.armed = self._mask is not None or seconds > budget

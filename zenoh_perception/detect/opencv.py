@@ -102,7 +102,7 @@ class OpenCvDetector:
         start = perf_counter()
         found = self._detect(self.grids.prepare(gray), (0, 0))
         self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
-        return found
+        return [d for d in found if self.grids.keep(d.corners)]
 
     def detect_region(
         self,
