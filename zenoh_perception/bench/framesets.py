@@ -32,6 +32,9 @@ from zenoh_perception.scene.boards import BOARD_KINDS, board_scene
 #: The independent frame sets: every named resolution of the scene generator.
 RESOLUTIONS: Final = tuple(SCENE_RESOLUTIONS)
 VIDEO_RESOLUTION: Final = "HD720"
+#: The board case: square sizes (px) of the checkerboards beside tags, per kind of board.
+BOARD_SQUARES: Final = (8, 10, 12, 14, 17, 20)
+BOARD_SQUARES_QUICK: Final = (10, 16)
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,6 +52,7 @@ class Plan:
     # with service processes of its own (one pass's figure varies from run to run on a shared
     # machine; the passes are pooled)
     e2e_passes: int = 3
+    board_squares: tuple[int, ...] = BOARD_SQUARES
 
     @classmethod
     def full(cls) -> Plan:
@@ -63,6 +67,7 @@ class Plan:
             lookalike_frames=1,
             throughput_s=1.0,
             e2e_passes=2,
+            board_squares=BOARD_SQUARES_QUICK,
         )
 
 
@@ -119,11 +124,6 @@ def frame_sets(plan: Plan, progress: Progress | None) -> list[FrameSet]:
     return sets
 
 
-#: The board case: square sizes (px) of the checkerboards beside tags, per kind of board.
-BOARD_SQUARES: Final = (8, 10, 12, 14, 17, 20)
-BOARD_SQUARES_QUICK: Final = (10, 16)
-
-
 @dataclass(frozen=True, slots=True)
 class BoardFrame:
     """An HD720 frame with a board of ``kind`` and ``square`` px over its left half and the
@@ -135,10 +135,10 @@ class BoardFrame:
     ids: frozenset[int]
 
 
-def board_frames(quick: bool, seed: int = 2024) -> list[BoardFrame]:
-    """Every kind of board at every square size (fewer with ``quick``)."""
+def board_frames(plan: Plan) -> list[BoardFrame]:
+    """Every kind of board at every square size of ``plan``."""
     width, height = SCENE_RESOLUTIONS[VIDEO_RESOLUTION]
-    squares = BOARD_SQUARES_QUICK if quick else BOARD_SQUARES
+    squares, seed = plan.board_squares, plan.seed
     frames = []
     for index, (kind, square) in enumerate(
         (kind, square) for kind in BOARD_KINDS for square in squares

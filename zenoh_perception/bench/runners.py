@@ -155,4 +155,14 @@ def board_case(
     for name in PAIR:
         _, ms = runners[name].run(after)
         good[name] = ms
-    return {"frames": rows, "after_storm_ms": good}
+    summary = {
+        name: {
+            "median_ms": float(np.median([row[name]["ms"] for row in rows])),
+            "max_ms": float(max(row[name]["ms"] for row in rows)),
+            "found": sum(row[name]["found"] for row in rows),
+            "false": sum(row[name]["false"] for row in rows),
+            "tags": sum(row[name]["tags"] for row in rows),
+        }
+        for name in PAIR
+    }
+    return {"frames": rows, "summary": summary, "after_storm_ms": good}

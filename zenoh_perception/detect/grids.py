@@ -84,14 +84,14 @@ class _Blobs:
         )
         square[0] = False  # the background
         rows, cols = cells
-        self.labels = labels
+        self.labels: npt.NDArray[np.int32] = np.asarray(labels, np.int32)
         self.square = square
         self.stats = stats
         self.cx, self.cy = cx, cy
         # every blob's centre, one pixel each, summed: how many centres lie in a box
         points = np.zeros(blobs.shape, np.uint8)
         points[cy[1:], cx[1:]] = 1
-        self.centre_sums = np.asarray(cv2.integral(points), np.int32)
+        self.centre_sums = np.asarray(cv2.integral(points, sdepth=cv2.CV_32S), np.int32)
         self.net = np.zeros(count, bool)
         self.cell = np.minimum(cy // _CELL, rows - 1) * cols + np.minimum(cx // _CELL, cols - 1)
         size = rows * cols
@@ -196,8 +196,9 @@ class _Blobs:
         """The pixels of the squares centred in a cell where ``grid`` holds, and those of
         nets inside such cells (``cells``: the grid, one value a pixel)."""
         squares = self.square & grid[self.cell]
-        nets = self.net[self.labels] & (cells > 0)
-        painted: npt.NDArray[np.bool_] = squares[self.labels] | nets
+        painted: npt.NDArray[np.bool_] = np.take(squares, self.labels)
+        if self.net.any():
+            painted |= np.take(self.net, self.labels) & (cells > 0)
         return painted
 
 
@@ -255,8 +256,9 @@ def grid_mask(gray: Gray) -> npt.NDArray[np.bool_] | None:
     )
     spread = spread[: small.shape[0], : small.shape[1]]
     painted = dark.painted(grid, spread) | light.painted(grid, spread)
-    full = cv2.resize(painted.view(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST)
-    full = cv2.dilate(full, np.ones((3, 3), np.uint8))
+    # grown by a pixel at half size: the edges between squares go too
+    grown = cv2.dilate(painted.view(np.uint8), np.ones((3, 3), np.uint8))
+    full = cv2.resize(grown, (width, height), interpolation=cv2.INTER_NEAREST)
     return np.asarray(full, bool)
 
 
