@@ -35,6 +35,8 @@ CENTRE_ERROR_PX: Final = 0.5
 
 #: A frame with a checkerboard over half of it, answered within this (median, ms).
 BOARD_MEDIAN_MS: Final = 60.0
+#: What looking out for grids may add to a plain frame (ms).
+PLAIN_FRAME_COST_MS: Final = 0.1
 
 
 def goal(name: str, value: Any, threshold: str, passed: bool, note: str = "") -> dict[str, Any]:
@@ -105,6 +107,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             f"<= {BOARD_MEDIAN_MS}",
             after <= BOARD_MEDIAN_MS,
             f"OpenCV default {boards['after_storm_ms']['opencv']:.1f} ms",
+        )
+        cost = boards["plain_frame_cost_ms"]
+        add(
+            "boards: the grid keeper's cost on a plain frame (ms)",
+            cost,
+            f"<= {PLAIN_FRAME_COST_MS}",
+            cost <= PLAIN_FRAME_COST_MS,
+            f"OpenCV default {boards['plain_frame_opencv_ms']:.1f} ms on it",
         )
     e2e = report.get("e2e")
     if e2e is not None:

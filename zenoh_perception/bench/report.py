@@ -81,6 +81,16 @@ def _boards(case: dict[str, Any]) -> str:
     rows.append(
         ["a good frame after the storm", "", *(fmt(after[name], ".1f") for name in PAIR), "", ""]
     )
+    rows.append(
+        [
+            "plain frame: the grid keeper's cost",
+            "",
+            fmt(case["plain_frame_opencv_ms"], ".1f"),
+            fmt(case["plain_frame_cost_ms"], ".4f"),
+            "",
+            "",
+        ]
+    )
     headers = ["board (HD720, left half)", "square px", *(f"{n} ms" for n in PAIR)]
     headers += [f"{n} tags" for n in PAIR]
     return "Checkerboards beside tags, frame by frame\n" + table(headers, rows)
