@@ -13,7 +13,7 @@ import pytest
 
 from tests.bench.conftest import QUICK_PLAN, BenchRun
 from zenoh_perception.bench import generated
-from zenoh_perception.bench.framesets import RESOLUTIONS, Plan
+from zenoh_perception.bench.framesets import BOARD_SQUARES_QUICK, RESOLUTIONS, Plan
 from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.scene.boards import BOARD_KINDS
 
@@ -151,6 +151,7 @@ def test_main_writes_the_report_and_exits_1_when_a_goal_fails(
         throughput_s=1.0,
         seed=7,
         e2e_passes=1,
+        board_squares=BOARD_SQUARES_QUICK,
     )
     assert (with_e2e, shm) == (False, False)
 
