@@ -99,8 +99,10 @@ class OpenCvDetector:
         """Markers in the whole image; with ``min_perimeter_px``, none whose perimeter is
         shorter than that many pixels (never smaller than the configured rate allows)."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
+        image = self.grids.prepare(gray)
+        # OpenCV's read alone: the finder's own time must not keep it armed
         start = perf_counter()
-        found = self._detect(self.grids.prepare(gray), (0, 0))
+        found = self._detect(image, (0, 0))
         self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
         return [d for d in found if self.grids.keep(d.corners)]
 
