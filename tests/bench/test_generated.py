@@ -13,8 +13,9 @@ import pytest
 
 from tests.bench.conftest import QUICK_PLAN, BenchRun
 from zenoh_perception.bench import generated
-from zenoh_perception.bench.framesets import RESOLUTIONS, Plan
+from zenoh_perception.bench.framesets import BOARD_SQUARES_QUICK, RESOLUTIONS, Plan
 from zenoh_perception.bench.scoring import Tally
+from zenoh_perception.scene.boards import BOARD_KINDS
 
 SUMMARY_KEYS = set(Tally().summary())
 REPORT_KEYS = {
@@ -26,6 +27,7 @@ REPORT_KEYS = {
     "e2e",
     "throughput",
     "e2e_setup",
+    "boards",
     "goals",
 }
 SET_KEYS = {"resolution", "video", "baseline", "tracking", "tracking_counters"}
@@ -149,6 +151,7 @@ def test_main_writes_the_report_and_exits_1_when_a_goal_fails(
         throughput_s=1.0,
         seed=7,
         e2e_passes=1,
+        board_squares=BOARD_SQUARES_QUICK,
     )
     assert (with_e2e, shm) == (False, False)
 
@@ -167,3 +170,18 @@ def test_the_full_plan_is_the_documented_one() -> None:
     quick = Plan.quick()
     assert (quick.frames, quick.video_frames, quick.e2e_passes) == (6, 24, 2)
     assert quick.e2e_passes > 1  # the quick run pools passes too
+
+
+def test_the_board_case_has_every_board_and_both_detectors(quick: BenchRun) -> None:
+    boards = quick.report["boards"]
+    kinds = {(row["kind"], row["square_px"]) for row in boards["frames"]}
+    assert kinds == {(k, s) for k in BOARD_KINDS for s in QUICK_PLAN.board_squares}
+    for name in ("opencv", "service"):
+        summary = boards["summary"][name]
+        assert summary["tags"] == 2 * len(kinds)
+        assert summary["median_ms"] > 0 and boards["after_storm_ms"][name] > 0
+    # the service finds every tag OpenCV's default finds beside the boards
+    assert boards["summary"]["service"]["found"] >= boards["summary"]["opencv"]["found"]
+    assert boards["plain_frame_cost_ms"] > 0
+    goals = {g["goal"] for g in quick.report["goals"]}
+    assert "boards: service median ms a frame" in goals

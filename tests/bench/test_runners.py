@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.bench.runners import PAIR, Baseline, Project, compare, pair, rotation
+from zenoh_perception.bench.framesets import Plan, board_frames
+from zenoh_perception.bench.runners import (
+    PAIR,
+    Baseline,
+    Project,
+    board_case,
+    compare,
+    pair,
+    rotation,
+)
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 from zenoh_perception.settings import Settings
@@ -60,3 +69,17 @@ def test_the_pair_runs_the_service_s_detector_with_its_settings() -> None:
     assert tuple(runners) == PAIR
     assert runners["opencv"].run(image)[0]  # OpenCV's default sees the tags...
     assert runners["service"].run(image)[0] == []  # ...the service drops them: too small
+
+
+def test_the_board_case_gives_each_detector_its_figures_frame_by_frame() -> None:
+    frames = board_frames(Plan(board_squares=(12,)))[:2]
+    after = SceneGenerator(CameraModel.named("HD720"), seed=2, effects=Effects.clean())
+    case = board_case(frames, after.random_scene(2, 0).image, None)
+    assert [(row["kind"], row["square_px"]) for row in case["frames"]] == [
+        (f.kind, f.square) for f in frames
+    ]
+    for row in case["frames"]:
+        for name in PAIR:
+            assert row[name]["found"] == row[name]["tags"] == 2 and row[name]["false"] == 0
+    assert set(case["after_storm_ms"]) == set(PAIR)
+    assert case["plain_frame_cost_ms"] > 0

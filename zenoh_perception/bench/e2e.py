@@ -27,7 +27,7 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import Camera, Remote, raw_frame, services
+from zenoh_perception.bench.processes import Camera, Remote, frames_of, raw_frame, services, settle
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.runners import DICTIONARY, Baseline, rotation
 from zenoh_perception.bench.scoring import Tally
@@ -165,3 +165,58 @@ def _records_by_seq(remote: Remote, count: int, timeout: float = 10.0) -> dict[i
         if len(by_seq) >= count or time.monotonic() >= deadline:
             return by_seq
         time.sleep(0.01)
+
+
+def paced_images(
+    name: str,
+    images: Sequence[Image],
+    plain: Image,
+    *,
+    rate_hz: float = 30.0,
+    plain_every: int = 4,
+    shm: bool = True,
+) -> dict[str, Any]:
+    """One service process (detector ``name``) sent ``images`` at ``rate_hz`` as a camera
+    would, ``plain`` in place of every ``plain_every``-th frame, without waiting for answers:
+    frames answered a second, and the in-service latency of the plain frames' answers (ms,
+    receipt to ``tag``, the wait behind a frame in progress included)."""
+    camera = Camera(shm)
+    bench_endpoint = loopback_endpoint()
+    height, width = images[0].shape[:2]
+    frames = [
+        raw_frame(plain if index % plain_every == plain_every - 1 else image, index)
+        for index, image in enumerate(images)
+    ]
+    with (
+        zenoh.open(loopback_config(listen=[bench_endpoint])) as session,
+        services([name], bench_endpoint, session) as remotes,
+    ):
+        remote = remotes[name]
+        remote.warm_up(width, height, camera)
+        start = time.perf_counter()
+        for index, frame in enumerate(frames):
+            loaded = camera.load(frame.payload)
+            delay = start + index / rate_hz - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            remote.publisher.put(loaded, attachment=frame.attachment)
+            del loaded
+        sent_s = time.perf_counter() - start
+        status = settle(remote, len(frames))
+        records = remote.records()
+    plain_ms = [
+        float(r["timing"]["latency_ms"])
+        for r in records
+        if int(r["seq"]) % plain_every == plain_every - 1
+    ]
+    return {
+        "frames": len(frames),
+        "rate_hz": rate_hz,
+        "answered": len(records),
+        "answered_per_s": len(records) / max(sent_s, 1e-9),
+        "plain_frames": len(frames) // plain_every,
+        "plain_answered": len(plain_ms),
+        "plain_latency_median_ms": float(np.median(plain_ms)) if plain_ms else None,
+        "plain_latency_max_ms": max(plain_ms) if plain_ms else None,
+        "status_frames": frames_of(status),
+    }

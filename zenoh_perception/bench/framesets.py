@@ -10,7 +10,9 @@ Every set has realistic effects (blur, motion blur, noise, lighting, clutter):
 - ``real-camera`` and ``real-camera video``: the same at HD720 with what real cameras add
   (:meth:`~zenoh_perception.scene.Effects.real_camera`: colour casts, JPEG 4:2:0, exposure,
   shadows, glare, greyscale, rolling shutter, strong blur), a quarter of the tags cut by the
-  border on every other independent frame.
+  border on every other independent frame;
+- ``boards`` (:func:`board_frames`): HD720 frames with a checkerboard (straight, rotated, in
+  perspective) or a tiled floor of 8-20 px squares over half the frame and tags beside it.
 """
 
 from __future__ import annotations
@@ -19,13 +21,20 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
+import numpy as np
+import numpy.typing as npt
+
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.resolutions import RESOLUTIONS as SCENE_RESOLUTIONS
 from zenoh_perception.scene import CameraModel, Effects, Scene, SceneGenerator
+from zenoh_perception.scene.boards import BOARD_KINDS, board_scene
 
 #: The independent frame sets: every named resolution of the scene generator.
 RESOLUTIONS: Final = tuple(SCENE_RESOLUTIONS)
 VIDEO_RESOLUTION: Final = "HD720"
+#: The board case: square sizes (px) of the checkerboards beside tags, per kind of board.
+BOARD_SQUARES: Final = (8, 10, 12, 14, 17, 20)
+BOARD_SQUARES_QUICK: Final = (10, 16)
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +52,7 @@ class Plan:
     # with service processes of its own (one pass's figure varies from run to run on a shared
     # machine; the passes are pooled)
     e2e_passes: int = 3
+    board_squares: tuple[int, ...] = BOARD_SQUARES
 
     @classmethod
     def full(cls) -> Plan:
@@ -57,6 +67,7 @@ class Plan:
             lookalike_frames=1,
             throughput_s=1.0,
             e2e_passes=2,
+            board_squares=BOARD_SQUARES_QUICK,
         )
 
 
@@ -111,3 +122,28 @@ def frame_sets(plan: Plan, progress: Progress | None) -> list[FrameSet]:
     real_drive = generator(VIDEO_RESOLUTION, 50, Effects.real_camera())
     add("real-camera video", drive(real_drive), VIDEO_RESOLUTION, video=True)
     return sets
+
+
+@dataclass(frozen=True, slots=True)
+class BoardFrame:
+    """An HD720 frame with a board of ``kind`` and ``square`` px over its left half and the
+    tags ``ids`` beside it."""
+
+    kind: str
+    square: int
+    image: npt.NDArray[np.uint8]
+    ids: frozenset[int]
+
+
+def board_frames(plan: Plan) -> list[BoardFrame]:
+    """Every kind of board at every square size of ``plan``."""
+    width, height = SCENE_RESOLUTIONS[VIDEO_RESOLUTION]
+    squares, seed = plan.board_squares, plan.seed
+    frames = []
+    for index, (kind, square) in enumerate(
+        (kind, square) for kind in BOARD_KINDS for square in squares
+    ):
+        scene = board_scene(width, height, square, kind, seed=seed + index)
+        ids = frozenset(tag_id for tag_id, _ in scene.markers)
+        frames.append(BoardFrame(kind, square, scene.image, ids))
+    return frames

@@ -14,6 +14,9 @@ The bench, top down:
   (each pass with fresh service processes, so each starts as cold as one run does, tracks and
   caches included), pooled, each pass's own-cost ratio reported as well;
 - :mod:`~zenoh_perception.bench.throughput`: HD1080 at 60 Hz to a service process;
+- the board case (:func:`~zenoh_perception.bench.runners.board_case`): checkerboards and tiled
+  floors of 8-20 px squares over half an HD720 frame with tags beside, OpenCV's default and
+  the service's detector frame by frame, then a good frame after that storm;
 - :mod:`~zenoh_perception.bench.goals`, :mod:`~zenoh_perception.bench.report` and
   :mod:`~zenoh_perception.bench.plot`: the verdicts, the text report and the PNG.
 
@@ -41,6 +44,7 @@ from zenoh_perception.bench.framesets import (
     VIDEO_RESOLUTION,
     FrameSet,
     Plan,
+    board_frames,
     frame_sets,
 )
 from zenoh_perception.bench.goals import goals
@@ -49,10 +53,11 @@ from zenoh_perception.bench.plot import plot
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigterm_exits
 from zenoh_perception.bench.progress import Progress
 from zenoh_perception.bench.report import format_report
-from zenoh_perception.bench.runners import Baseline, Project, compare
+from zenoh_perception.bench.runners import Baseline, Project, board_case, compare
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.bench.throughput import THROUGHPUT_HZ, measure_throughput
 from zenoh_perception.detect.tracking import tracking_counters
+from zenoh_perception.scene.boards import BOARD_KINDS
 from zenoh_perception.scene.lookalikes import FAMILIES, LOOKALIKE_KINDS
 
 #: The frame sets measured end to end.
@@ -65,6 +70,7 @@ def run_bench(plan: Plan, *, with_e2e: bool = True, shm: bool = True) -> dict[st
     work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
     work += (plan.frames + plan.video_frames) * 2
     work += len(FAMILIES) * (len(LOOKALIKE_KINDS) + 1) * plan.lookalike_frames
+    work += len(BOARD_KINDS) * len(plan.board_squares)
     if with_e2e:
         work += (plan.frames + 2 * plan.video_frames) * max(1, plan.e2e_passes)
         work += 2 * round(THROUGHPUT_HZ * plan.throughput_s) + 30
@@ -115,6 +121,9 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         report["e2e"] = _end_to_end(sets, progress, shm=shm, passes=plan.e2e_passes)
         report["throughput"] = measure_throughput(plan, progress, shm=shm)
         report["e2e_setup"] = _e2e_setup(report, shm)
+    # a storm of board frames, then a good frame: the HD720 set's first
+    after = next(s for s in sets if s.name == VIDEO_RESOLUTION).scenes[0].image
+    report["boards"] = board_case(board_frames(plan), after, progress)
     report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
     report["goals"] = goals(report)
     return report

@@ -33,6 +33,12 @@ INDEPENDENT_E2E_RATIO: Final = 1.0
 CENTRE_ERROR_PX: Final = 0.5
 
 
+#: A frame with a checkerboard over half of it, answered within this (median, ms).
+BOARD_MEDIAN_MS: Final = 60.0
+#: What looking out for grids may add to a plain frame (ms).
+PLAIN_FRAME_COST_MS: Final = 0.1
+
+
 def goal(name: str, value: Any, threshold: str, passed: bool, note: str = "") -> dict[str, Any]:
     """One goal's row of a report."""
     return {
@@ -71,6 +77,45 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
         f"<= {CENTRE_ERROR_PX}",
         worst <= CENTRE_ERROR_PX,
     )
+    boards = report.get("boards")
+    if boards is not None:
+        summary = boards["summary"]
+        service, opencv = summary["service"], summary["opencv"]
+        add(
+            "boards: service median ms a frame",
+            service["median_ms"],
+            f"<= {BOARD_MEDIAN_MS}",
+            service["median_ms"] <= BOARD_MEDIAN_MS,
+            f"OpenCV default {opencv['median_ms']:.1f} ms",
+        )
+        add(
+            "boards: tags found >= OpenCV default",
+            service["found"],
+            f">= {opencv['found']}",
+            service["found"] >= opencv["found"],
+        )
+        add(
+            "boards: false ids <= OpenCV default",
+            service["false"],
+            f"<= {opencv['false']}",
+            service["false"] <= opencv["false"],
+        )
+        after = boards["after_storm_ms"]["service"]
+        add(
+            "boards: a good frame after the storm (ms)",
+            after,
+            f"<= {BOARD_MEDIAN_MS}",
+            after <= BOARD_MEDIAN_MS,
+            f"OpenCV default {boards['after_storm_ms']['opencv']:.1f} ms",
+        )
+        cost = boards["plain_frame_cost_ms"]
+        add(
+            "boards: the grid keeper's cost on a plain frame (ms)",
+            cost,
+            f"<= {PLAIN_FRAME_COST_MS}",
+            cost <= PLAIN_FRAME_COST_MS,
+            f"OpenCV default {boards['plain_frame_opencv_ms']:.1f} ms on it",
+        )
     e2e = report.get("e2e")
     if e2e is not None:
         for set_name, stat, limit in (

@@ -47,8 +47,53 @@ def format_report(report: dict[str, Any]) -> str:
         parts.append(_end_to_end(report))
     if "throughput" in report:
         parts.append(_throughput(report["throughput"]))
+    if "boards" in report:
+        parts.append(_boards(report["boards"]))
     parts.append(goals_table(report["goals"], lambda v: fmt(v, ".3f")))
     return "\n\n".join(parts)
+
+
+def _boards(case: dict[str, Any]) -> str:
+    """The board case: per frame OpenCV's default and the service's ms and tags found, the
+    totals, and a good frame's ms after the storm."""
+    rows = [
+        [
+            row["kind"],
+            str(row["square_px"]),
+            *(fmt(row[name]["ms"], ".1f") for name in PAIR),
+            *(f"{row[name]['found']}/{row[name]['tags']}" for name in PAIR),
+        ]
+        for row in case["frames"]
+    ]
+    summary = case["summary"]
+    rows.append(
+        [
+            "median (found, false: totals)",
+            "",
+            *(fmt(summary[name]["median_ms"], ".1f") for name in PAIR),
+            *(
+                f"{summary[name]['found']}/{summary[name]['tags']}, {summary[name]['false']}"
+                for name in PAIR
+            ),
+        ]
+    )
+    after = case["after_storm_ms"]
+    rows.append(
+        ["a good frame after the storm", "", *(fmt(after[name], ".1f") for name in PAIR), "", ""]
+    )
+    rows.append(
+        [
+            "plain frame: the grid keeper's cost",
+            "",
+            fmt(case["plain_frame_opencv_ms"], ".1f"),
+            fmt(case["plain_frame_cost_ms"], ".4f"),
+            "",
+            "",
+        ]
+    )
+    headers = ["board (HD720, left half)", "square px", *(f"{n} ms" for n in PAIR)]
+    headers += [f"{n} tags" for n in PAIR]
+    return "Checkerboards beside tags, frame by frame\n" + table(headers, rows)
 
 
 def _detection(report: dict[str, Any]) -> str:

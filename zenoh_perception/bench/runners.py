@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import Final, Protocol, TypeVar
+from typing import Any, Final, Protocol, TypeVar
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.bench.framesets import BoardFrame
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.grids import GridKeeper
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
@@ -124,3 +126,65 @@ def compare(
             tallies[k].add(scene, detections, ms)
         tick(progress, label)
     return tallies
+
+
+def board_case(
+    frames: Sequence[BoardFrame],
+    after: Image,
+    progress: Progress | None,
+    settings: Settings | None = None,
+) -> dict[str, Any]:
+    """OpenCV's default and the service's detector (``settings``, default: the service's
+    defaults) on the board frames, one after the other as a storm, then on ``after``, a
+    good frame: per frame the milliseconds and tags found of each; the good frame's time."""
+    runners = pair(DICTIONARY, settings if settings is not None else Settings())
+    rows = []
+    for index, frame in enumerate(frames):
+        row: dict[str, Any] = {"kind": frame.kind, "square_px": frame.square}
+        for name in rotation(PAIR, index):
+            detections, ms = runners[name].run(frame.image)
+            ids = {d.tag_id for d in detections}
+            row[name] = {
+                "ms": ms,
+                "found": len(ids & frame.ids),
+                "false": len(ids - frame.ids),
+                "tags": len(frame.ids),
+            }
+        rows.append(row)
+        tick(progress, "boards")
+    good = {}
+    for name in PAIR:
+        _, ms = runners[name].run(after)
+        good[name] = ms
+    summary: dict[str, Any] = {
+        name: {
+            "median_ms": float(np.median([row[name]["ms"] for row in rows])),
+            "max_ms": float(max(row[name]["ms"] for row in rows)),
+            "found": sum(row[name]["found"] for row in rows),
+            "false": sum(row[name]["false"] for row in rows),
+            "tags": sum(row[name]["tags"] for row in rows),
+        }
+        for name in PAIR
+    }
+    return {
+        "frames": rows,
+        "summary": summary,
+        "after_storm_ms": good,
+        "plain_frame_cost_ms": keeper_cost_ms(after),
+        "plain_frame_opencv_ms": good["opencv"],
+    }
+
+
+def keeper_cost_ms(image: Image, repeat: int = 2000) -> float:
+    """What the grid keeper adds to the read of a plain frame (``image``, BGRA), in ms: its
+    preparation, the clock and its verdict on the markers, averaged over ``repeat`` runs."""
+    gray = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), np.uint8)
+    keeper = GridKeeper()
+    corners = np.zeros((4, 2), np.float32)
+    start = time.perf_counter()
+    for _ in range(repeat):
+        begin = time.perf_counter()
+        keeper.prepare(gray)
+        keeper.record(time.perf_counter() - begin, gray.size)
+        keeper.keep(corners)
+    return (time.perf_counter() - start) * 1e3 / repeat

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from time import perf_counter
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.detect.grids import GridKeeper
 from zenoh_perception.detect.types import Detection, dictionary_name, dictionary_names
 
 
@@ -82,6 +84,9 @@ class OpenCvDetector:
         self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(self.dictionaries[0]), params)
         if len(self.dictionaries) > 1:
             self._detector.setDictionaries([aruco_dictionary(d) for d in self.dictionaries])
+        #: periodic grids (checkerboards, tiled floors) painted over before a whole-frame read
+        #: once a read proved expensive (see detect/grids.py)
+        self.grids = GridKeeper()
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
         if len(self.dictionaries) == 1:
@@ -94,7 +99,12 @@ class OpenCvDetector:
         """Markers in the whole image; with ``min_perimeter_px``, none whose perimeter is
         shorter than that many pixels (never smaller than the configured rate allows)."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
-        return self._detect(gray, (0, 0))
+        image = self.grids.prepare(gray)
+        # OpenCV's read alone: the finder's own time must not keep it armed
+        start = perf_counter()
+        found = self._detect(image, (0, 0))
+        self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
+        return [d for d in found if self.grids.keep(d.corners)]
 
     def detect_region(
         self,
