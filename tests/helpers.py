@@ -26,6 +26,10 @@ import zenoh
 from zenoh_perception.bench._loopback import free_port, loopback_config, loopback_endpoint
 
 REPO = Path(__file__).resolve().parent.parent
+#: How long a test waits, by default, for something that should come: generous, since it
+#: costs nothing when the thing comes early, and a 2-core machine running two test suites
+#: and more may give a process a tenth of a core for seconds.
+WAIT_S = 60.0
 
 
 @contextmanager
@@ -66,7 +70,7 @@ class Collector:
             )
         )
 
-    def get(self, timeout: float = 10.0) -> Received:
+    def get(self, timeout: float = WAIT_S) -> Received:
         """The next sample; raises queue.Empty after ``timeout`` s."""
         return self.queue.get(timeout=timeout)
 
@@ -82,7 +86,7 @@ class Collector:
         self._subscriber.undeclare()
 
 
-def wait_for_subscriber(publisher: zenoh.Publisher, timeout: float = 10.0) -> None:
+def wait_for_subscriber(publisher: zenoh.Publisher, timeout: float = WAIT_S) -> None:
     """Block until ``publisher`` has a matching subscriber (or fail after ``timeout``)."""
     matched: queue.Queue[bool] = queue.Queue()
     listener = publisher.declare_matching_listener(lambda status: matched.put(status.matching))
@@ -111,7 +115,7 @@ def query_status(
 
 
 def wait_for_status(
-    session: zenoh.Session, key: str = "perception/status", timeout: float = 60.0
+    session: zenoh.Session, key: str = "perception/status", timeout: float = WAIT_S
 ) -> dict[str, Any]:
     """Poll the status queryable until a service answers (it is then fully started)."""
     deadline = time.monotonic() + timeout
@@ -141,8 +145,9 @@ def sigterm_exit(proc: subprocess.Popen[str], timeout: float = 10.0) -> tuple[in
 
 
 @contextmanager
-def running_cli(*args: str, stop_timeout: float = 5.0) -> Iterator[subprocess.Popen[str]]:
-    """Start the real CLI as a subprocess; SIGINT and reap it on exit (kill if it hangs)."""
+def running_cli(*args: str, stop_timeout: float = 30.0) -> Iterator[subprocess.Popen[str]]:
+    """Start the real CLI as a subprocess; SIGINT and reap it on exit (kill if it hangs: a
+    test that checks the exit code after the block then sees -9)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         cli_command(*args),
@@ -186,7 +191,7 @@ class OutputLines:
         finally:
             self._lines.put(None)  # end of output
 
-    def wait_for(self, text: str, timeout: float = 60.0) -> str:
+    def wait_for(self, text: str, timeout: float = WAIT_S) -> str:
         """The next line holding ``text``; AssertionError at the end of the output, TimeoutError
         when no such line came within ``timeout`` s."""
         deadline = time.monotonic() + timeout
@@ -198,7 +203,7 @@ class OutputLines:
             if text in line:
                 return line
 
-    def rest(self, timeout: float = 30.0) -> list[str]:
+    def rest(self, timeout: float = WAIT_S) -> list[str]:
         """Every line still to come, up to the end of the output (the process has exited or
         is exiting); TimeoutError when the output has not ended within ``timeout`` s."""
         deadline = time.monotonic() + timeout
@@ -223,7 +228,7 @@ class OutputLines:
 
 
 def wait_until(
-    predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition"
+    predicate: Callable[[], bool], timeout: float = WAIT_S, what: str = "condition"
 ) -> None:
     """Poll ``predicate`` (every 10 ms) until it holds; TimeoutError after ``timeout`` s."""
     deadline = time.monotonic() + timeout

@@ -1,10 +1,18 @@
 """The benches' runs shared by the tests of their modules: ``bench --quick`` through the CLI
 (end to end through real service processes, shared memory and plain bytes), and a small
-labelled corpus (made-up items: the real corpus is not in CI)."""
+labelled corpus (made-up items: the real corpus is not in CI).
+
+Each bench run happens once per test session, however many pytest-xdist workers ask for it:
+``--dist loadgroup`` sends its tests to one worker where it can (with pytest 9.2 it cannot,
+pytest-xdist issue 1386), and a lock in the session's temporary folder makes the workers that
+ask meanwhile wait for that run and read its report instead of running it again.
+"""
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -32,18 +40,40 @@ class BenchRun:
     plot: Path
 
 
-def _bench(folder: Path, *argv: str) -> BenchRun:
-    path, plot = folder / "bench.json", folder / "bench.png"
-    code = cli.main(["bench", *argv, "--json", str(path), "--plot", str(plot)])
+def _bench(factory: pytest.TempPathFactory, name: str, *argv: str) -> BenchRun:
+    """``bench *argv``, run by the first worker of the session that asks for ``name``."""
+    root = factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the session's folder, above each worker's own
+    folder = root / f"bench-{name}"
+    path, plot, exit_code = folder / "bench.json", folder / "bench.png", folder / "exit-code"
+    with (root / f"bench-{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file is closed
+        if not exit_code.exists():
+            folder.mkdir(exist_ok=True)
+            code = cli.main(["bench", *argv, "--json", str(path), "--plot", str(plot)])
+            exit_code.write_text(str(code), encoding="ascii")
     report: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
-    return BenchRun(code, report, plot)
+    return BenchRun(int(exit_code.read_text(encoding="ascii")), report, plot)
 
 
+#: The time a test of a bench run may take: one run can take minutes on a loaded 2-core
+#: machine, and a test may wait for one run and then do the other.
+BENCH_RUN_TIMEOUT_S = 1200
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Under pytest-xdist, the tests of one bench run go to one worker, which runs it once."""
+    """The tests of the bench runs go to one pytest-xdist worker (see the module's doc), and
+    their setup may take a run or two.
+
+    First among the hooks: pytest-xdist reads the ``xdist_group`` marks in its own
+    ``pytest_collection_modifyitems``, which would otherwise run before this one and see none.
+    """
     for item in items:
         if {"quick", "quick_no_shm"} & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("bench-run"))
+            item.add_marker(pytest.mark.timeout(BENCH_RUN_TIMEOUT_S))
 
 
 @pytest.fixture(scope="session")
@@ -51,14 +81,14 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> BenchRun:
     """``bench --quick``: every frame set, end to end and throughput, shared memory."""
     plan = QUICK_PLAN
     argv = ("--quick", "--frames", str(plan.frames), "--video-frames", str(plan.video_frames))
-    return _bench(tmp_path_factory.mktemp("bench"), *argv)
+    return _bench(tmp_path_factory, "quick", *argv)
 
 
 @pytest.fixture(scope="session")
 def quick_no_shm(tmp_path_factory: pytest.TempPathFactory) -> BenchRun:
     """A smaller quick run, one pass, whose camera puts plain bytes."""
     argv = ("--quick", "--no-shm", "--frames", "2", "--video-frames", "4", "--passes", "1")
-    return _bench(tmp_path_factory.mktemp("bench"), *argv)
+    return _bench(tmp_path_factory, "quick-no-shm", *argv)
 
 
 def square(x0: float, y0: float, side: float) -> npt.NDArray[np.float64]:

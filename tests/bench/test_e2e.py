@@ -3,15 +3,24 @@ floor: every frame answered, recall and timing from the records, passes pooled."
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench.e2e import Lockstep, lockstep, record_detections
+from zenoh_perception.bench import e2e
+from zenoh_perception.bench.e2e import (
+    LOCKSTEP_DEADLINE_MS,
+    Lockstep,
+    lockstep,
+    record_detections,
+)
 from zenoh_perception.bench.framesets import Plan
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, ServiceError
 from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.scene import CameraModel, SceneGenerator
+from zenoh_perception.settings import Settings
 
 ENTRY_KEYS = {*E2E_DETECTORS, FLOOR, "baseline_detection", "camera", "passes", "pass_ratios"}
 
@@ -71,6 +80,30 @@ def test_a_service_that_fails_to_start_is_reported_with_its_output() -> None:
     scene = SceneGenerator(CameraModel.named("VGA"), seed=3).random_scene(1, 0)
     with pytest.raises(ServiceError, match="detector must be one of"):
         lockstep(["bogus"], [scene], None, "bogus")
+
+
+class _StartedError(Exception):
+    """Raised in place of starting the services."""
+
+
+def test_generated_frames_are_never_abandoned_for_a_busy_machine(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A frame abandoned at the deadline gets no answer, and the lockstep would wait for it
+    # in vain: the services' deadline is far above what a busy machine makes of a frame.
+    given: list[tuple[str, ...]] = []
+
+    def services(*args: Any) -> None:
+        _names, _endpoint, _session, _dictionary, flags = args
+        given.append(tuple(flags))
+        raise _StartedError
+
+    monkeypatch.setattr(e2e, "services", services)
+    scene = SceneGenerator(CameraModel.named("VGA"), seed=3).random_scene(1, 0)
+    with pytest.raises(_StartedError):
+        lockstep(["opencv"], [scene], None, "x")
+    assert given == [("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS))]
+    assert 20 * Settings().frame_deadline_ms <= LOCKSTEP_DEADLINE_MS
 
 
 def test_a_record_s_tags_become_detections() -> None:

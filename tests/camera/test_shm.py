@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import pytest
 import zenoh
 
-from tests.helpers import wait_for_subscriber
+from tests.helpers import WAIT_S, wait_for_subscriber
 from zenoh_perception.camera.shm import ShmPutter, ShmUnavailableError
 
 KEY = "shm/test"
@@ -46,7 +46,7 @@ class Receiver:
         )
 
     def get(self) -> Got:
-        return self.queue.get(timeout=10.0)
+        return self.queue.get(timeout=WAIT_S)
 
 
 @pytest.fixture

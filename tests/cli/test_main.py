@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import json
 import socket
+from pathlib import Path
 
 import pytest
 
 from zenoh_perception import __version__
 from zenoh_perception.camera import replay
 from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_FRAME_ID, DEFAULT_KEY
+from zenoh_perception.cli import commands
 from zenoh_perception.cli import main as cli
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings import Settings, settings_from_args
 
 
 @pytest.mark.parametrize(
@@ -133,3 +136,19 @@ def test_replay_flags_have_the_camera_defaults() -> None:
     assert (options.key, options.compressed) == (DEFAULT_KEY, None)
     assert args.max_frame_bytes == Settings().max_frame_bytes
     assert args.wait_for_subscriber is True and args.subscriber_timeout is None
+
+
+def _queue_size(*argv: str) -> int:
+    args = cli.build_parser().parse_args(["run", *argv])
+    conf = commands.run_config(args, settings_from_args(args))
+    size: int = json.loads(conf.get_json("transport/link/tx/queue/size/data"))
+    return size
+
+
+def test_run_gives_each_link_room_for_a_frames_outputs(tmp_path: Path) -> None:
+    # Zenoh's default (2) dropped a frame's third output when its transmit task was late.
+    assert _queue_size() == _queue_size("--ros-transport", "rmw_zenoh") == 16
+    assert _queue_size("--cfg", "transport/link/tx/queue/size/data:4") == 4
+    session = tmp_path / "session.json5"
+    session.write_text('{ mode: "peer" }\n', encoding="utf-8")
+    assert _queue_size("-c", str(session)) == 2  # a config file is the user's whole say

@@ -37,6 +37,7 @@ from tests.helpers import (
     running_cli,
     wait_until,
 )
+from zenoh_perception.camera.shm import DEFAULT_SLOTS
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.compressed import compressed_image_data, decode_compressed_cdr
@@ -173,6 +174,10 @@ def test_shm_replay_is_answered_and_read_from_shared_memory(
     answers them, and on this machine the service side reads every one in place. (Plain puts
     of large frames also arrive in shared memory once Zenoh's transport optimisation has copied
     them there, all but the first frames here: the replay's own counters tell the paths apart.)
+
+    On a busy machine the service and Zenoh may still hold every buffer of the replay's pool
+    when a frame comes: that frame goes as plain bytes, counted, and the replay never waits.
+    A fresh pool has a buffer for each of its first frames.
     """
     if kind == "video":
         source = tmp_path / "drive.avi"
@@ -198,11 +203,13 @@ def test_shm_replay_is_answered_and_read_from_shared_memory(
         indices = _frame_indices(got, "stamp_ns", HEADER_STAMPS)
     assert [r["selected"]["tag_id"] for r in got] == [TAG_IDS[i] for i in indices]
     assert {r["source"] for r in got} == {"raw" if kind == "video" else "cdr"}
-    assert shm == [True] * N_FRAMES
     (started,) = log_events(output, "replay_started")
     assert started["shm"] == "True"
     done = _done(output)
-    assert (done["shm_frames"], done["plain_frames"]) == (str(N_FRAMES), "0")
+    shm_frames, plain_frames = int(done["shm_frames"]), int(done["plain_frames"])
+    assert shm_frames + plain_frames == N_FRAMES
+    assert shm_frames >= DEFAULT_SLOTS
+    assert sum(shm) >= shm_frames, (shm, done)  # each frame put from shared memory read in place
 
 
 @pytest.mark.parametrize("codec", ["jpeg", "png"])

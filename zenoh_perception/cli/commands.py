@@ -10,6 +10,7 @@ import argparse
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from zenoh_perception.camera.defaults import (
     DEFAULT_COMPRESSED_KEY,
@@ -32,6 +33,7 @@ from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
 from zenoh_perception.service.zenoh_args import (
     RMW_ZENOH_SESSION_DEFAULTS,
+    SERVICE_SESSION_DEFAULTS,
     add_zenoh_arguments,
     zenoh_config_from_args,
 )
@@ -44,15 +46,25 @@ from zenoh_perception.settings import (
     settings_from_args,
 )
 
+if TYPE_CHECKING:
+    import zenoh
+
 
 def _session_defaults(ros_transport: str) -> Mapping[str, object] | None:
     """rmw_zenoh's session defaults on an rmw_zenoh graph, else Zenoh's own."""
     return RMW_ZENOH_SESSION_DEFAULTS if ros_transport == "rmw_zenoh" else None
 
 
+def run_config(args: argparse.Namespace, settings: Settings) -> zenoh.Config:
+    """The service's session: the transport's defaults and the service's own
+    (:data:`~zenoh_perception.service.zenoh_args.SERVICE_SESSION_DEFAULTS`), then the flags."""
+    defaults = {**(_session_defaults(settings.ros_transport) or {}), **SERVICE_SESSION_DEFAULTS}
+    return zenoh_config_from_args(args, defaults)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
-    conf = zenoh_config_from_args(args, _session_defaults(settings.ros_transport))
+    conf = run_config(args, settings)
     from zenoh_perception.service import node  # noqa: PLC0415
 
     return node.run(conf, settings, stop_on_signals())

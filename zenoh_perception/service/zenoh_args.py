@@ -30,6 +30,16 @@ RMW_ZENOH_SESSION_DEFAULTS: Final[Mapping[str, object]] = {
     "scouting/gossip/enabled": True,
 }
 
+#: What ``run`` sets beside Zenoh's defaults when no ``-c`` file is given (flags override it):
+#: room in each link's queue of data messages for every output of a frame and of the next.
+#: A frame's outputs (tag, record, detections, TF, debug image) are express messages, one
+#: queue entry each; Zenoh's default queue holds 2 and drops a message that waits 1 ms for
+#: room, so a frame's third output was lost whenever the transmit task had not run for 1 ms,
+#: which a busy machine makes common. 16 is Zenoh's largest; entries are allocated when used.
+SERVICE_SESSION_DEFAULTS: Final[Mapping[str, object]] = {
+    "transport/link/tx/queue/size/data": 16,
+}
+
 
 def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
     """``zenoh.open(conf)``.
