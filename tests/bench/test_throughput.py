@@ -18,7 +18,11 @@ def test_every_service_got_every_frame_at_60_hz(quick: BenchRun, quick_no_shm: B
             assert result["published"] == round(THROUGHPUT_HZ * Plan.quick().throughput_s)
             # the bench publishes with congestion control "block": none lost on the way
             assert result["received"] == result["published"]
-            assert result["processed"] + result["dropped"] == result["received"]
+            # every frame received is answered, replaced by a newer one, or (on a loaded
+            # machine, past the frame deadline) abandoned and counted
+            assert (
+                result["processed"] + result["dropped"] + result["rejected"] == result["received"]
+            )
             assert result["processed"] > 0
             assert result["resolution"] == "1920x1080"
             assert 0.0 < result["latency_p50_ms"] <= result["latency_p99_ms"]

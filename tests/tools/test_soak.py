@@ -12,7 +12,13 @@ from tests.helpers import REPO
 
 def test_short_soak_measures_the_real_service_and_passes(tmp_path: Path) -> None:
     out = tmp_path / "soak.json"
-    argv = ["--duration", "5", "--rate", "60", "--resolution", "HD720", "--warmup", "1"]
+    # Seconds, not minutes: this checks the tool's mechanics and catches a gross leak (a kept
+    # HD720 frame a frame is 160 MiB a second, several times the service's whole RSS). Under
+    # a loaded machine, frames Zenoh buffers while the worker waits for a core grew RSS by up
+    # to a third over a second of warm-up, so the growth allowed here is wider than the
+    # tool's default, which judges a run of minutes (docs/robustness.md).
+    argv = ["--duration", "6", "--rate", "60", "--resolution", "HD720", "--warmup", "2"]
+    argv += ["--max-rss-growth-pct", "60"]
     # from the repository root, as tools/README.md says to run it
     done = subprocess.run(
         [sys.executable, "-m", "tools.soak", *argv, "--json", str(out), "--quiet"],

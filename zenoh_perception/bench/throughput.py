@@ -88,6 +88,8 @@ def throughput(
         "received": after["received"] - before["received"],
         "processed": processed,
         "dropped": after["dropped"] - before["dropped"],
+        # frames refused or abandoned at the frame deadline (a loaded machine): accounted for
+        "rejected": after["rejected"] - before["rejected"],
         "processed_hz": rounded(processed / published_s if published_s > 0 else 0.0),
         "latency_p50_ms": rounded(np.percentile(latency, 50)) if latency else None,
         "latency_p99_ms": rounded(np.percentile(latency, 99)) if latency else None,
