@@ -185,3 +185,18 @@ def test_the_board_case_has_every_board_and_both_detectors(quick: BenchRun) -> N
     assert boards["plain_frame_cost_ms"] > 0
     goals = {g["goal"] for g in quick.report["goals"]}
     assert "boards: service median ms a frame" in goals
+
+
+def test_the_boards_go_to_a_service_process_at_30_hz(
+    quick: BenchRun, quick_no_shm: BenchRun
+) -> None:
+    for run in (quick, quick_no_shm):
+        paced = run.report["boards"]["paced"]
+        assert paced["rate_hz"] == 30.0
+        assert paced["frames"] == generated.PACED_FRAMES
+        # every frame sent reached the service and is accounted for there
+        frames = paced["status_frames"]
+        assert frames["received"] == paced["frames"]
+        assert frames["received"] == frames["processed"] + frames["dropped"] + frames["rejected"]
+        assert paced["answered"] == frames["processed"] > 0
+        assert 0 <= paced["plain_answered"] <= paced["plain_frames"] == paced["frames"] // 4

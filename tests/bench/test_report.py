@@ -112,6 +112,14 @@ def test_every_throughput_run_has_its_row(quick: BenchRun) -> None:
         ]
 
 
+def test_the_paced_board_run_has_its_line(quick: BenchRun) -> None:
+    paced = quick.report["boards"]["paced"]
+    text = format_report(quick.report)
+    line = next(ln for ln in text.splitlines() if "Hz into a service process" in ln)
+    assert f"{paced['answered']} of {paced['frames']} frames answered" in line
+    assert f"plain frames answered {paced['plain_answered']} of {paced['plain_frames']}" in line
+
+
 def test_every_goal_has_its_row_and_verdict(quick: BenchRun) -> None:
     text = format_report(quick.report)
     for goal in quick.report["goals"]:

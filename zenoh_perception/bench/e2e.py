@@ -27,7 +27,15 @@ import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import Camera, Remote, frames_of, raw_frame, services, settle
+from zenoh_perception.bench.processes import (
+    Camera,
+    Remote,
+    frames_of,
+    quiet,
+    raw_frame,
+    services,
+    settle,
+)
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.runners import DICTIONARY, Baseline, rotation
 from zenoh_perception.bench.scoring import Tally
@@ -206,6 +214,8 @@ def paced_images(
     ):
         remote = remotes[name]
         remote.warm_up(width, height, camera)
+        before = frames_of(quiet(remote))  # the warm-up's frames are not this run's
+        remote.clear_records()
         start = time.perf_counter()
         for index, frame in enumerate(frames):
             loaded = camera.load(frame.payload)
@@ -215,7 +225,7 @@ def paced_images(
             remote.publisher.put(loaded, attachment=frame.attachment)
             del loaded
         sent_s = time.perf_counter() - start
-        status = settle(remote, len(frames))
+        after = frames_of(settle(remote, before["received"] + len(frames)))
         records = remote.records()
     plain_ms = [
         float(r["timing"]["latency_ms"])
@@ -231,5 +241,5 @@ def paced_images(
         "plain_answered": len(plain_ms),
         "plain_latency_median_ms": float(np.median(plain_ms)) if plain_ms else None,
         "plain_latency_max_ms": max(plain_ms) if plain_ms else None,
-        "status_frames": frames_of(status),
+        "status_frames": {key: after[key] - before[key] for key in after},
     }

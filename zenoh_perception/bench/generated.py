@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from zenoh_perception import __version__
-from zenoh_perception.bench.e2e import Lockstep, lockstep
+from zenoh_perception.bench.e2e import Lockstep, lockstep, paced_images
 from zenoh_perception.bench.framesets import (
     RESOLUTIONS,
     VIDEO_RESOLUTION,
@@ -62,6 +62,8 @@ from zenoh_perception.scene.lookalikes import FAMILIES, LOOKALIKE_KINDS
 
 #: The frame sets measured end to end.
 E2E_SETS: Final = (VIDEO_RESOLUTION, "video", "real-camera video")
+#: About how many board frames the paced run sends at 30 Hz (the board frames repeated).
+PACED_FRAMES: Final = 96
 
 
 def run_bench(plan: Plan, *, with_e2e: bool = True, shm: bool = True) -> dict[str, Any]:
@@ -123,7 +125,13 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         report["e2e_setup"] = _e2e_setup(report, shm)
     # a storm of board frames, then a good frame: the HD720 set's first
     after = next(s for s in sets if s.name == VIDEO_RESOLUTION).scenes[0].image
-    report["boards"] = board_case(board_frames(plan), after, progress)
+    boards = board_frames(plan)
+    report["boards"] = board_case(boards, after, progress)
+    if with_e2e:
+        # the same storm as a camera sends it: at 30 Hz, a plain frame every fourth, never
+        # waiting for an answer, into the default service's process
+        storm = [board.image for board in boards] * max(1, PACED_FRAMES // len(boards))
+        report["boards"]["paced"] = paced_images("opencv", storm, after, shm=shm)
     report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
     report["goals"] = goals(report)
     return report

@@ -93,7 +93,18 @@ def _boards(case: dict[str, Any]) -> str:
     )
     headers = ["board (HD720, left half)", "square px", *(f"{n} ms" for n in PAIR)]
     headers += [f"{n} tags" for n in PAIR]
-    return "Checkerboards beside tags, frame by frame\n" + table(headers, rows)
+    text = "Checkerboards beside tags, frame by frame\n" + table(headers, rows)
+    paced = case.get("paced")
+    if paced is not None:
+        text += (
+            f"\nThe same boards at {paced['rate_hz']:g} Hz into a service process, a plain frame "
+            f"every fourth: {paced['answered']} of {paced['frames']} frames answered "
+            f"({paced['answered_per_s']:.1f} a second); plain frames answered "
+            f"{paced['plain_answered']} of {paced['plain_frames']}, receipt to tag median "
+            f"{fmt(paced['plain_latency_median_ms'], '.1f')} ms, max "
+            f"{fmt(paced['plain_latency_max_ms'], '.1f')} ms\n"
+        )
+    return text
 
 
 def _detection(report: dict[str, Any]) -> str:
