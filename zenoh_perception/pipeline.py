@@ -178,14 +178,18 @@ class TagFinder:
         self.vetoed.update(reasons)
 
 
-def detector_for(settings: Settings) -> Detector:
+def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
     """The detector the settings name: what :class:`Pipeline` runs unless given another (the
     service's deadline runs it in a child process, built there by this function). Sets the
-    process's OpenCV threads as ``opencv_threads`` says."""
+    process's OpenCV threads as ``opencv_threads`` says. ``wary``: for a detector that
+    replaces one whose read stalled (see :func:`~.detect.factory.make_detector`)."""
     if settings.opencv_threads > 0:
         cv2.setNumThreads(settings.opencv_threads)
     return make_detector(
-        settings.detector, settings.dictionary, full_scan_period=settings.full_scan_period
+        settings.detector,
+        settings.dictionary,
+        full_scan_period=settings.full_scan_period,
+        wary=wary,
     )
 
 

@@ -8,7 +8,14 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from zenoh_perception.detect.grids import GridKeeper, grid_mask, keep_grids_away, on_painted
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.grids import (
+    _HOLD_READS,
+    GridKeeper,
+    grid_mask,
+    keep_grids_away,
+    on_painted,
+)
 from zenoh_perception.detect.opencv import OpenCvDetector, aruco_dictionary
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 from zenoh_perception.scene.boards import BOARD_KINDS, board_scene
@@ -93,7 +100,7 @@ def test_a_charuco_boards_markers_are_all_still_found(square: int) -> None:
     assert sorted(d.tag_id for d in kept.detect(frame)) == expected
 
 
-def test_the_keeper_arms_after_an_expensive_read_and_disarms_on_a_plain_frame() -> None:
+def test_the_keeper_arms_after_an_expensive_read_and_disarms_after_plain_frames() -> None:
     keeper = GridKeeper()
     plain = np.full((H, W), 128, np.uint8)
     assert keeper.prepare(plain) is plain
@@ -105,8 +112,17 @@ def test_the_keeper_arms_after_an_expensive_read_and_disarms_on_a_plain_frame() 
     assert keeper.prepare(board) is not board
     keeper.record(0.005, W * H)
     assert keeper.armed  # a grid was found: it stays armed however quick the read was
-    assert keeper.prepare(plain) is plain
+    # a plain frame amid board frames keeps it armed: the next board is not read whole
+    for _ in range(_HOLD_READS - 1):
+        assert keeper.prepare(plain) is plain
+        keeper.record(0.005, W * H)
+        assert keeper.armed
+    assert keeper.prepare(board) is not board
     keeper.record(0.005, W * H)
+    for _ in range(_HOLD_READS):
+        assert keeper.armed
+        keeper.prepare(plain)
+        keeper.record(0.005, W * H)
     assert not keeper.armed
 
 
@@ -116,3 +132,22 @@ def test_a_marker_on_painted_pixels_is_not_kept() -> None:
     quad = np.array([[10, 10], [30, 10], [30, 30], [10, 30]], np.float32)
     assert not on_painted(quad, mask)
     assert on_painted(quad + 40, mask)
+
+
+@pytest.mark.parametrize("name", ["opencv", "tracking"])
+def test_a_wary_detector_keeps_a_board_away_from_its_first_read(name: str) -> None:
+    # a detector that replaces one whose read stalled: the board that stalled it is painted
+    # on the first frame, not read whole again (a read past the deadline each time)
+    scene = board_scene(W, H, 10, "straight", tags=(3, 7))
+    gray = _gray(scene.image)
+    plain, wary = make_detector(name, "DICT_4X4_50"), make_detector(name, "DICT_4X4_50", wary=True)
+    assert sorted(d.tag_id for d in wary.detect(gray)) == [3, 7]
+    assert sorted(d.tag_id for d in plain.detect(gray)) == [3, 7]
+    assert _keeper(wary)._mask is not None
+    assert _keeper(plain)._mask is None
+
+
+def _keeper(detector: object) -> GridKeeper:
+    opencv = detector if isinstance(detector, OpenCvDetector) else detector._opencv  # type: ignore[attr-defined]
+    keeper: GridKeeper = opencv.grids
+    return keeper

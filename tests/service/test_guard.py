@@ -7,6 +7,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -42,6 +43,19 @@ class _Stalling:
 
 def _stalling() -> _Stalling:
     detector = _Stalling()
+    BUILT.append(detector)
+    return detector
+
+
+class _AfterStall(_Stalling):
+    """The detector built after a stall: says so in its detections' dictionary."""
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        return [replace(d, dictionary="after_stall") for d in super().detect(gray)]
+
+
+def _after_stall() -> _AfterStall:
+    detector = _AfterStall()
     BUILT.append(detector)
     return detector
 
@@ -174,6 +188,27 @@ def test_frames_return_in_process_once_the_thread_ended_and_calm_passed(
     # read in process: a stall there is abandoned by check again
     reader, _ = _stall(guard)
     assert guard.stuck == 1
+
+
+def test_the_detectors_after_a_stall_come_from_after_stall() -> None:
+    # the service builds them wary of periodic grids: the frames that stalled a read come again
+    RELEASE.clear()
+    BUILT.clear()
+    guarded = GuardedDetector(_stalling, 0.3, calm_s=0.5, after_stall=_after_stall)
+    guarded.start()
+    try:
+        assert [d.dictionary for d in guarded.detect(_gray(5))] == ["DICT_4X4_50"]
+        reader, _ = _stall(guarded)
+        assert isinstance(BUILT[-1], _AfterStall)  # the next in-process read's
+        # the child's detector
+        assert [(d.tag_id, d.dictionary) for d in guarded.detect(_gray(7))] == [(7, "after_stall")]
+        RELEASE.set()
+        reader.join(5.0)
+        wait_until(lambda: not guarded.in_child, timeout=5.0, what="in process again")
+        assert [(d.tag_id, d.dictionary) for d in guarded.detect(_gray(9))] == [(9, "after_stall")]
+    finally:
+        RELEASE.set()
+        guarded.close()
 
 
 def test_abandon_gives_the_thread_of_the_read_in_flight(guard: GuardedDetector) -> None:

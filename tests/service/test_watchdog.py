@@ -6,6 +6,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -46,6 +47,13 @@ class _Misbehaving:
 
 def _misbehaving() -> _Misbehaving:
     return _Misbehaving()
+
+
+class _AfterStall(_Misbehaving):
+    """The detector of a spare child: says so in its detections' dictionary."""
+
+    def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
+        return [replace(d, dictionary="after_stall") for d in super().detect(gray)]
 
 
 def _dies_at_start() -> _Misbehaving:
@@ -90,6 +98,16 @@ def test_finds_exactly_what_the_same_detector_finds_in_process() -> None:
         _same(isolated.detect(gray), expected)
     _same(found, expected)
     assert [d.tag_id for d in found] == [5]
+
+
+def test_the_spare_that_takes_over_from_a_killed_read_is_built_by_after_stall(
+    stop: threading.Event,
+) -> None:
+    with IsolatedDetector(_misbehaving, 0.3, stop=stop, after_stall=_AfterStall) as isolated:
+        assert [d.dictionary for d in isolated.detect(_gray(5))] == ["DICT_4X4_50"]
+        with pytest.raises(FrameAbandonedError):
+            isolated.detect(_marked(_STALL))
+        assert [(d.tag_id, d.dictionary) for d in isolated.detect(_gray(5))] == [(5, "after_stall")]
 
 
 def test_a_read_past_the_deadline_is_abandoned_and_the_next_frame_read(

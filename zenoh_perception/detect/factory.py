@@ -8,16 +8,21 @@ from zenoh_perception.detect.types import DETECTORS, Detector
 from zenoh_perception.errors import SettingsError
 
 
-def make_detector(name: str, dictionary: str, *, full_scan_period: int = 4) -> Detector:
-    """The detector called ``name`` (one of :data:`~.types.DETECTORS`) for ``dictionary``.
+def make_detector(
+    name: str, dictionary: str, *, full_scan_period: int = 4, wary: bool = False
+) -> Detector:
+    """The detector called ``name`` (one of :data:`~.types.DETECTORS`) for ``dictionary``;
+    ``wary``: one that replaces a detector whose read stalled, keeping periodic grids away
+    from its first read on (see :mod:`~zenoh_perception.detect.grids`).
 
     Raises:
         SettingsError: unknown detector or dictionary, or a period out of bounds.
 
     """
     if name == "opencv":
-        return OpenCvDetector(dictionary)
+        return OpenCvDetector(dictionary, wary=wary)
     if name == "tracking":
-        return TrackingDetector(dictionary, TrackingConfig(full_scan_period=full_scan_period))
+        config = TrackingConfig(full_scan_period=full_scan_period)
+        return TrackingDetector(dictionary, config, wary=wary)
     msg = f"unknown detector {name!r}; choose one of {', '.join(DETECTORS)}"
     raise SettingsError(msg)

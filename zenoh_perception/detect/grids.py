@@ -20,7 +20,8 @@ How a grid is told (on the frame at half size, in 16 px cells there):
   a board keeps a margin of untouched pixels around it.
 
 :class:`GridKeeper` runs this only while it pays: after a read that took long for the
-frame's size, and for as long as grids are found; plain frames cost one clock reading.
+frame's size, and for a few reads after the last grid found (a plain frame amid boards, a
+board out of view for a moment); plain frames otherwise cost one clock reading.
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ _MAX_LARGE_COVER = 0.02
 #: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper.
 _EXPENSIVE_NS_PER_PIXEL = 40.0
 _EXPENSIVE_FLOOR_S = 0.015
+#: Reads the keeper stays armed for after the last one that found a grid: a board seen on
+#: and off (a plain frame between board frames, a robot turning) must not cost a whole
+#: unguarded read each time it comes back (hundreds of ms); a look for grids costs a few.
+_HOLD_READS = 30
 
 
 class _Blobs:
@@ -289,12 +294,16 @@ class GridKeeper:
     """Whether to look for grids before a whole-frame read, the frame to read, and which of
     the markers read there to keep.
 
-    Armed after a read that cost more than about 40 ns a pixel (15 ms at least) and for as
-    long as grids are found; a frame read meanwhile without a grid disarms it.
+    Armed after a read that cost more than about 40 ns a pixel (15 ms at least) and for
+    ``_HOLD_READS`` reads after the last frame with a grid; then a quick read disarms it.
+
+    ``armed``: look for grids from the first read (a detector that replaces one whose read
+    stalled: the frames that stalled it are likely to come again).
     """
 
-    def __init__(self) -> None:
-        self.armed = False
+    def __init__(self, *, armed: bool = False) -> None:
+        self._hold = _HOLD_READS if armed else 0
+        self.armed = armed
         self._mask: npt.NDArray[np.bool_] | None = None
 
     def prepare(self, gray: Gray) -> Gray:
@@ -312,4 +321,8 @@ class GridKeeper:
     def record(self, seconds: float, pixels: int) -> None:
         """After the read of a frame of ``pixels`` that took ``seconds``."""
         budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
-        self.armed = self._mask is not None or seconds > budget
+        if self._mask is not None or seconds > budget:
+            self._hold = _HOLD_READS
+        elif self._hold > 0:
+            self._hold -= 1
+        self.armed = self._hold > 0

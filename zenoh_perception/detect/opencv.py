@@ -76,7 +76,7 @@ class OpenCvDetector:
     are matched against every dictionary) and each detection names its dictionary.
     """
 
-    def __init__(self, dictionary: str = "DICT_4X4_50") -> None:
+    def __init__(self, dictionary: str = "DICT_4X4_50", *, wary: bool = False) -> None:
         params = cv2.aruco.DetectorParameters()
         self._params = params
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
@@ -85,8 +85,9 @@ class OpenCvDetector:
         if len(self.dictionaries) > 1:
             self._detector.setDictionaries([aruco_dictionary(d) for d in self.dictionaries])
         #: periodic grids (checkerboards, tiled floors) painted over before a whole-frame read
-        #: once a read proved expensive (see detect/grids.py)
-        self.grids = GridKeeper()
+        #: once a read proved expensive (see detect/grids.py); from the first read when
+        #: ``wary`` (a detector replacing one whose read stalled)
+        self.grids = GridKeeper(armed=wary)
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
         if len(self.dictionaries) == 1:

@@ -131,10 +131,14 @@ class TrackingDetector:
     in between (see the module documentation)."""
 
     def __init__(
-        self, dictionary: str = "DICT_4X4_50", config: TrackingConfig | None = None
+        self,
+        dictionary: str = "DICT_4X4_50",
+        config: TrackingConfig | None = None,
+        *,
+        wary: bool = False,
     ) -> None:
         self.config = config if config is not None else TrackingConfig()
-        self._opencv = OpenCvDetector(dictionary)
+        self._opencv = OpenCvDetector(dictionary, wary=wary)
         self._tracks: list[_Track] = []
         self._thumb: Change | None = None
         self._since_scan = 0

@@ -11,6 +11,9 @@ IsolatedDetector`) bounds every frame but costs each one two process wake-ups. S
   finishes OpenCV's call on its own; it then raises :class:`StaleDetection` (its
   results are dropped, it touches nothing else) and ends. A fresh detector serves the next
   in-process read, so a detector's state between frames starts afresh, as after a restart.
+  The detectors built after a stall (in process and in the child) come from ``after_stall``:
+  the service's keep periodic grids away from their first read, since the frames that
+  stalled a read tend to come again.
 - While an abandoned read is still running, and for ``calm_s`` after the last abandoned frame,
   frames go to the child process instead, where a stalled frame is killed at the deadline: a
   board that stays in view never leaves more than one thread stuck in OpenCV.
@@ -78,12 +81,14 @@ class GuardedDetector:
         *,
         stop: threading.Event | None = None,
         calm_s: float = CALM_S,
+        after_stall: DetectorFactory | None = None,
     ) -> None:
         self.deadline_s = deadline_s
         self.calm_s = calm_s
-        self._factory = factory
+        self._factory = after_stall if after_stall is not None else factory
         self._local: Detector = factory()
-        self.isolated = IsolatedDetector(factory, deadline_s, stop=stop)
+        # the child serves frames only after a stall
+        self.isolated = IsolatedDetector(self._factory, deadline_s, stop=stop)
         self._lock = threading.Lock()
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector
@@ -165,7 +170,7 @@ class GuardedDetector:
             if _set_priority(read.native_id, LOW_PRIORITY):
                 self._lowered.append(read)
         # The abandoned detector stays with its thread; a detector keeping state between
-        # frames (tracking) starts afresh, as a restarted child does.
+        # frames (tracking) starts afresh, as a restarted child does, built for a stall.
         self._local = self._factory()
         return (now - read.started) * 1e3
 

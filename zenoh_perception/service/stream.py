@@ -227,11 +227,15 @@ class Stream:
             detector = shared.detector
             if detector is None and s.frame_deadline_ms > 0:
                 factory, deadline_s = partial(detector_for, s), s.frame_deadline_ms / 1e3
+                # the detectors that take over from a stalled read keep grids away at once
+                wary = partial(detector_for, s, wary=True)
                 if s.detector_process == "always":
-                    self._isolated = IsolatedDetector(factory, deadline_s, stop=shared.stop)
+                    self._isolated = IsolatedDetector(
+                        factory, deadline_s, stop=shared.stop, after_stall=wary
+                    )
                 else:
                     self._isolated = self.guard = GuardedDetector(
-                        factory, deadline_s, stop=shared.stop
+                        factory, deadline_s, stop=shared.stop, after_stall=wary
                     )
                 detector = self._isolated
             self._pipeline = Pipeline(s, detector)

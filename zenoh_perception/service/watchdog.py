@@ -100,6 +100,9 @@ class IsolatedDetector:
     """A detector built by ``factory`` in a child process, each read bounded by
     ``deadline_s``; see the module documentation. Use it from one thread at a time.
 
+    ``after_stall`` (default ``factory``) builds the detector of each spare child: a spare
+    takes over only when a read was killed, and may expect the frames that stalled it.
+
     Raises (from :meth:`detect`):
         FrameAbandonedError: the read took longer than the deadline, or ``stop`` was set.
         ProcessingError: the detector failed on the frame, or its process died (stage
@@ -112,9 +115,11 @@ class IsolatedDetector:
         deadline_s: float,
         *,
         stop: threading.Event | None = None,
+        after_stall: DetectorFactory | None = None,
     ) -> None:
         self.deadline_s = deadline_s
         self._factory = factory
+        self._after_stall = after_stall if after_stall is not None else factory
         self._stop = stop if stop is not None else threading.Event()
         self._context = multiprocessing.get_context("forkserver")
         # The fork server imports this module and the factory's once: a child starts warm.
@@ -131,7 +136,7 @@ class IsolatedDetector:
         if self._active is None:
             self._active = _Child(self._context, self._factory)
         if self._spare is None:
-            self._spare = _Child(self._context, self._factory)
+            self._spare = _Child(self._context, self._after_stall)
 
     def close(self) -> None:
         """Kill the children and free the shared memory."""
