@@ -51,6 +51,7 @@ def test_the_report_has_every_part_and_the_plan(quick: BenchRun) -> None:
         "throughput_s": plan.throughput_s,
         "seed": plan.seed,
         "e2e_passes": plan.e2e_passes,
+        "busy_board_frames": plan.busy_board_frames,
     }
     assert report["machine"]["cpus"] >= 1
 
@@ -152,6 +153,7 @@ def test_main_writes_the_report_and_exits_1_when_a_goal_fails(
         seed=7,
         e2e_passes=1,
         board_squares=BOARD_SQUARES_QUICK,
+        busy_board_frames=10,
     )
     assert (with_e2e, shm) == (False, False)
 
@@ -185,6 +187,21 @@ def test_the_board_case_has_every_board_and_both_detectors(quick: BenchRun) -> N
     assert boards["plain_frame_cost_ms"] > 0
     goals = {g["goal"] for g in quick.report["goals"]}
     assert "boards: service median ms a frame" in goals
+
+
+def test_a_board_past_the_frame_deadline_is_answered_with_its_tags(
+    quick: BenchRun, quick_no_shm: BenchRun
+) -> None:
+    # the first frame is abandoned at the deadline; the detectors built after it keep the
+    # board away from their first read, so the frames after it are answered (before, every
+    # replacement read the board whole again and was abandoned in turn)
+    for run in (quick, quick_no_shm):
+        busy = run.report["boards"]["busy"]
+        frames = busy["status_frames"]
+        assert busy["frames"] == run.report["plan"]["busy_board_frames"]
+        assert frames["received"] == busy["frames"]
+        assert frames["received"] == frames["processed"] + frames["dropped"] + frames["rejected"]
+        assert busy["answered_with_tags"] >= busy["board_frames"] // 2, busy
 
 
 def test_the_boards_go_to_a_service_process_at_30_hz(

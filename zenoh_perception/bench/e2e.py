@@ -196,11 +196,13 @@ def paced_images(
     rate_hz: float = 30.0,
     plain_every: int = 4,
     shm: bool = True,
+    ids: frozenset[int] = frozenset(),
 ) -> dict[str, Any]:
     """One service process (detector ``name``) sent ``images`` at ``rate_hz`` as a camera
     would, ``plain`` in place of every ``plain_every``-th frame, without waiting for answers:
-    frames answered a second, and the in-service latency of the plain frames' answers (ms,
-    receipt to ``tag``, the wait behind a frame in progress included)."""
+    frames answered a second, the in-service latency of the plain frames' answers (ms,
+    receipt to ``tag``, the wait behind a frame in progress included), and how many answers
+    hold every tag of ``ids``."""
     camera = Camera(shm)
     bench_endpoint = loopback_endpoint()
     height, width = images[0].shape[:2]
@@ -241,5 +243,8 @@ def paced_images(
         "plain_answered": len(plain_ms),
         "plain_latency_median_ms": float(np.median(plain_ms)) if plain_ms else None,
         "plain_latency_max_ms": max(plain_ms) if plain_ms else None,
+        "answered_with_tags": sum(
+            1 for r in records if ids <= {int(tag["tag_id"]) for tag in r["tags"]}
+        ),
         "status_frames": {key: after[key] - before[key] for key in after},
     }

@@ -53,6 +53,7 @@ class Plan:
     # machine; the passes are pooled)
     e2e_passes: int = 3
     board_squares: tuple[int, ...] = BOARD_SQUARES
+    busy_board_frames: int = 30  # sent at 5 Hz, a plain frame every tenth
 
     @classmethod
     def full(cls) -> Plan:
@@ -68,6 +69,7 @@ class Plan:
             throughput_s=1.0,
             e2e_passes=2,
             board_squares=BOARD_SQUARES_QUICK,
+            busy_board_frames=10,
         )
 
 

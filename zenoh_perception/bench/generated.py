@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import platform
+import time
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any, Final
@@ -38,7 +39,7 @@ import cv2
 import numpy as np
 
 from zenoh_perception import __version__
-from zenoh_perception.bench.e2e import Lockstep, lockstep, paced_images
+from zenoh_perception.bench.e2e import Image, Lockstep, lockstep, paced_images
 from zenoh_perception.bench.framesets import (
     RESOLUTIONS,
     VIDEO_RESOLUTION,
@@ -53,11 +54,12 @@ from zenoh_perception.bench.plot import plot
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigterm_exits
 from zenoh_perception.bench.progress import Progress
 from zenoh_perception.bench.report import format_report
-from zenoh_perception.bench.runners import Baseline, Project, board_case, compare
+from zenoh_perception.bench.runners import DICTIONARY, Baseline, Project, board_case, compare
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.bench.throughput import THROUGHPUT_HZ, measure_throughput
+from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.tracking import tracking_counters
-from zenoh_perception.scene.boards import BOARD_KINDS
+from zenoh_perception.scene.boards import BOARD_KINDS, busy_board_scene
 from zenoh_perception.scene.lookalikes import FAMILIES, LOOKALIKE_KINDS
 
 #: The frame sets measured end to end.
@@ -104,6 +106,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
             "throughput_s": plan.throughput_s,
             "seed": plan.seed,
             "e2e_passes": plan.e2e_passes,
+            "busy_board_frames": plan.busy_board_frames,
         },
         "sets": {},
     }
@@ -132,9 +135,28 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         # waiting for an answer, into the default service's process
         storm = [board.image for board in boards] * max(1, PACED_FRAMES // len(boards))
         report["boards"]["paced"] = paced_images("opencv", storm, after, shm=shm)
+        report["boards"]["busy"] = busy_board(after, shm=shm, frames=plan.busy_board_frames)
     report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
     report["goals"] = goals(report)
     return report
+
+
+def busy_board(after: Image, *, shm: bool, frames: int) -> dict[str, Any]:
+    """A board no read finishes within the frame deadline (:func:`~zenoh_perception.scene.
+    boards.busy_board_scene`), sent at 5 Hz into the default service's process, ``after`` in
+    place of every tenth frame: how many frames are answered with the board's tags, beside
+    OpenCV's default time on one such frame."""
+    scene = busy_board_scene()
+    gray = np.asarray(cv2.cvtColor(scene.image, cv2.COLOR_BGRA2GRAY), np.uint8)
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(DICTIONARY), cv2.aruco.DetectorParameters())
+    start = time.perf_counter()
+    detector.detectMarkers(gray)
+    opencv_ms = (time.perf_counter() - start) * 1e3
+    ids = frozenset(tag_id for tag_id, _ in scene.markers)
+    run = paced_images(
+        "opencv", [scene.image] * frames, after, rate_hz=5.0, plain_every=10, shm=shm, ids=ids
+    )
+    return {**run, "opencv_ms": opencv_ms, "board_frames": frames - frames // 10}
 
 
 def _end_to_end(

@@ -104,6 +104,14 @@ def _boards(case: dict[str, Any]) -> str:
             f"{fmt(paced['plain_latency_median_ms'], '.1f')} ms, max "
             f"{fmt(paced['plain_latency_max_ms'], '.1f')} ms\n"
         )
+    busy = case.get("busy")
+    if busy is not None:
+        text += (
+            f"A board past the frame deadline (OpenCV's default {busy['opencv_ms']:.0f} ms a "
+            f"frame) at {busy['rate_hz']:g} Hz: {busy['answered_with_tags']} of "
+            f"{busy['frames']} frames answered with its tags "
+            f"({busy['status_frames']['rejected']} abandoned)\n"
+        )
     return text
 
 

@@ -105,3 +105,34 @@ def board_scene(
         markers.append((tag_id, corners))
     image = render_markers(width, height, markers, dictionary=dictionary, background=background)
     return BoardScene(image, tuple(markers), board)
+
+
+def busy_board_scene(
+    width: int = 1280,
+    height: int = 720,
+    *,
+    square: float = 10.0,
+    share: float = 0.8,
+    tags: tuple[int, ...] = (3, 7),
+    dictionary: str = "DICT_4X4_50",
+) -> BoardScene:
+    """A straight board of ``square`` px over the left ``share`` of the frame and ``tags`` in a
+    column on the light strip beside it: at HD720, 10 px and 0.8, OpenCV's default takes over
+    a second a frame, past any frame deadline."""
+    edge = int(width * share)
+    background = np.full((height, width), 205, np.uint8)
+    background[:, :edge] = board_texture(edge, height, square, "straight")
+    board = np.zeros((height, width), bool)
+    board[:, :edge] = True
+    side = max(24, min(width - edge - 40, height // (2 * len(tags))))
+    gap = height // len(tags)
+    markers = []
+    for index, tag_id in enumerate(tags):
+        left, top = float(edge + 20), float(gap * index + (gap - side) // 2)
+        corners = np.array(
+            [[left, top], [left + side, top], [left + side, top + side], [left, top + side]],
+            np.float32,
+        )
+        markers.append((tag_id, corners))
+    image = render_markers(width, height, markers, dictionary=dictionary, background=background)
+    return BoardScene(image, tuple(markers), board)
