@@ -4,6 +4,7 @@ benchmark itself runs processes for minutes: not a test)."""
 from __future__ import annotations
 
 import os
+import time
 
 import zenoh
 
@@ -15,6 +16,7 @@ from zenoh_perception.bench.fleet import (
     _configs,
     _window,
     bytes_received,
+    cpu_seconds,
 )
 
 S = 1_000_000_000  # ns
@@ -57,3 +59,15 @@ def test_bytes_received_reads_this_process_sockets(endpoint: str) -> None:
         finally:
             subscriber.undeclare()
         assert bytes_received([os.getpid()])[os.getpid()] >= before + 200_000
+
+
+def test_cpu_seconds_counts_this_process_threads_and_0_for_a_process_gone() -> None:
+    pid = os.getpid()
+    before = cpu_seconds([pid])[pid]
+    # work (no sleep) until the kernel has counted 0.05 CPU-s more, or the deadline
+    deadline = time.monotonic() + 60
+    while cpu_seconds([pid])[pid] < before + 0.05:
+        assert time.monotonic() < deadline, "no CPU time counted for a minute of work"
+        sum(range(10_000))
+    gone = 2**22 + 1  # above the largest pid Linux gives by default
+    assert cpu_seconds([gone]) == {gone: 0.0}

@@ -23,11 +23,14 @@ For each (N, M):
    Then one instance is killed (SIGKILL) and one joins (with M = 1 the join comes first):
    after each, the time until every stream is answered again, the frames left unanswered,
    and the duplicates, in all and after the hand-over (frames stamped 3 s after the event).
-2. **Capacity.** The cameras put HD720 frames as fast as ``1.5 x`` the
+2. **Capacity.** The cameras put HD720 frames as fast as ``1.2 x`` the
    limit in total, congestion control DROP; frames answered per second across the streams
    over a window, and per-stream latency (camera stamp to the record's arrival here), set
    against the limit: bare OpenCV's default (grey conversion and ``detectMarkers``) reading
    the same frame in a loop in this process, measured in the same run before and after.
+   On one machine the cameras and routers take cores from the instances, so the CPU-seconds
+   each kind of process used in the window are measured too, and the instances' frames per
+   CPU-second are set against bare OpenCV's: what an instance makes of the cores it gets.
 
 This is a benchmark, not a test: it prints figures, and exit code 1 only when a process
 failed. The camera and router processes are this module run as a program
@@ -51,6 +54,7 @@ from collections import defaultdict
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Final
 
 import cv2
@@ -81,7 +85,7 @@ OUTPUTS: Final = (
 #: After a kill or a join, frames stamped this long after it must be answered exactly once.
 HANDOVER_S: Final = 3.0
 #: Offered load of the capacity phase, in multiples of the limit.
-OVERLOAD: Final = 1.5
+OVERLOAD: Final = 1.2
 STARTUP_TIMEOUT_S: Final = 120.0
 #: Off in every process of the fleet: frames cross the links as bytes, as between machines
 #: (on one machine Zenoh would otherwise pass large payloads through shared memory, and the
@@ -292,8 +296,33 @@ _PID: Final = re.compile(r"pid=(\d+),")
 _BYTES_RECEIVED: Final = re.compile(r"bytes_received:(\d+)")
 
 
-def opencv_limit(resolution: str, seconds: float) -> float:
-    """Frames per second bare OpenCV's default reads of the bench's frame, in a loop."""
+@dataclass(frozen=True, slots=True)
+class Limit:
+    """Bare OpenCV's default reading the bench's frames in a loop: frames per second, and
+    frames per CPU-second of this process (OpenCV's own threads included)."""
+
+    fps: float
+    per_cpu_s: float
+
+
+def cpu_seconds(pids: Sequence[int]) -> dict[int, float]:
+    """CPU seconds (user and system, every thread) each of ``pids`` has used so far; a
+    process that is gone counts 0."""
+    tick = os.sysconf("SC_CLK_TCK")
+    used = {}
+    for pid in pids:
+        try:
+            text = Path(f"/proc/{pid}/stat").read_text(encoding="ascii")
+        except OSError:
+            used[pid] = 0.0
+            continue
+        fields = text.rsplit(")", 1)[1].split()  # after the command name
+        used[pid] = (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    return used
+
+
+def opencv_limit(resolution: str, seconds: float) -> Limit:
+    """Bare OpenCV's default reading the bench's frames in a loop (see :class:`Limit`)."""
     width, height = RESOLUTIONS[resolution]
     images = [
         np.frombuffer(f, dtype=np.uint8).reshape(height, width, 4) for f in scene_frames(resolution)
@@ -301,11 +330,11 @@ def opencv_limit(resolution: str, seconds: float) -> float:
     detector = cv2.aruco.ArucoDetector(
         cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), cv2.aruco.DetectorParameters()
     )
-    count, start = 0, time.perf_counter()
+    count, start, cpu = 0, time.perf_counter(), time.process_time()
     while (elapsed := time.perf_counter() - start) < seconds or count < 3:
         detector.detectMarkers(cv2.cvtColor(images[count % len(images)], cv2.COLOR_BGRA2GRAY))
         count += 1
-    return count / elapsed
+    return Limit(count / elapsed, count / max(time.process_time() - cpu, 1e-9))
 
 
 @dataclass(slots=True)
@@ -314,6 +343,7 @@ class Fleet:
 
     router_a: str
     router_b: str
+    router_pids: tuple[int, ...] = ()
     shm: bool = False  # shared memory on in every process, the cameras' puts from it
     cameras: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
     instances: list[subprocess.Popen[bytes]] = field(default_factory=list)
@@ -388,6 +418,11 @@ class Result:
     offered_mb_s: float
     events: list[tuple[str, Window]]
     capacity_fps: float = 0.0
+    #: CPU-seconds a second each kind of process used during the capacity window (2 = both
+    #: cores of a 2-core machine): "cameras", "routers", "instances", "bench" (this one).
+    cpu_share: dict[str, float] = field(default_factory=dict)
+    #: Frames answered per CPU-second of the instances during the capacity window.
+    per_cpu_s: float = 0.0
     latency_ms: dict[str, tuple[float, float]] = field(default_factory=dict)
     steady_latency_ms: dict[str, tuple[float, float]] = field(default_factory=dict)
     dropped: int = 0
@@ -400,7 +435,7 @@ def run_config(
     m: int,
     *,
     rate: float,
-    limit: float,
+    limit: Limit,
     window_s: float,
 ) -> Result:
     records = Records(session)
@@ -448,20 +483,32 @@ def run_config(
         fleet.stop_cameras()
         # capacity: HD720 from shared memory, offered faster than the limit
         members = len(fleet.instances)
-        per_stream = OVERLOAD * limit / n
+        per_stream = OVERLOAD * limit.fps / n
         fleet.start_cameras(n, "HD720", per_stream, drop=True)
         _wait(lambda: _settled(session, members, n), STARTUP_TIMEOUT_S, "HD720 streams held")
         pause.wait(3.0)  # warm
         start_ns = time.time_ns()
         dropped_before = sum(s["frames"]["dropped"] for s in _statuses(session))
+        groups = {
+            "cameras": [p.pid for p in fleet.cameras.values()],
+            "routers": list(fleet.router_pids),
+            "instances": [p.pid for p in fleet.instances],
+            "bench": [os.getpid()],
+        }
+        cpu_before = {k: cpu_seconds(v) for k, v in groups.items()}
         pause.wait(window_s * 2)
         end_ns = time.time_ns()
+        cpu_after = {k: cpu_seconds(v) for k, v in groups.items()}
         dropped = sum(s["frames"]["dropped"] for s in _statuses(session)) - dropped_before
         pause.wait(1.0)
         window = [a for a in records.answers if start_ns <= a.stamp_ns < end_ns]
         unique = {(a.stream, a.seq) for a in window}
         result = Result(n, m, steady, per_instance, offered, events)
-        result.capacity_fps = len(unique) / ((end_ns - start_ns) / 1e9)
+        seconds = (end_ns - start_ns) / 1e9
+        result.capacity_fps = len(unique) / seconds
+        used = {k: sum(cpu_after[k][p] - cpu_before[k][p] for p in v) for k, v in groups.items()}
+        result.cpu_share = {k: v / seconds for k, v in used.items()}
+        result.per_cpu_s = len(unique) / max(used["instances"], 1e-9)
         result.latency_ms = _latency(window)
         result.steady_latency_ms = steady_latency
         result.dropped = dropped
@@ -482,7 +529,7 @@ def _latency(answers: list[Answer]) -> dict[str, tuple[float, float]]:
     }
 
 
-def format_result(r: Result, limit: float) -> list[str]:
+def format_result(r: Result, limit: Limit) -> list[str]:
     s = r.steady
     lines = [
         f"N={r.n} cameras, M={r.m} instances",
@@ -506,7 +553,14 @@ def format_result(r: Result, limit: float) -> list[str]:
     medians = [v[0] for v in r.latency_ms.values()]
     lines.append(
         f"  capacity (HD720): {r.capacity_fps:.1f} frames/s answered across {r.n} streams, "
-        f"limit {limit:.1f}: {r.capacity_fps / limit:.2f}x; {r.dropped} replaced in mailboxes"
+        f"limit {limit.fps:.1f}: {r.capacity_fps / limit.fps:.2f}x; {r.dropped} replaced in "
+        "mailboxes"
+    )
+    lines.append(
+        "  cores used meanwhile (CPU-s a second): "
+        + ", ".join(f"{k} {v:.2f}" for k, v in r.cpu_share.items())
+        + f"; the instances answered {r.per_cpu_s:.1f} frames per CPU-second, bare OpenCV "
+        f"reads {limit.per_cpu_s:.1f}: {r.per_cpu_s / limit.per_cpu_s:.2f}x"
     )
     if medians:
         lines.append(
@@ -527,13 +581,16 @@ def _configs(text: str | None) -> list[tuple[int, int]]:
 
 
 @contextmanager
-def _routers(*, shm: bool) -> Iterator[tuple[str, str]]:
+def _routers(*, shm: bool) -> Iterator[tuple[str, str, tuple[int, ...]]]:
+    """Routers A and B as processes: their endpoints and process ids."""
     a, b = loopback_endpoint(), loopback_endpoint()
+    pids = []
     with ExitStack() as stack:
         for args in (["router", "--listen", a], ["router", "--listen", b, "--connect", a]):
             proc = _spawn(_module_command(*args, *(["--shm"] if shm else [])))
             stack.callback(_stop, proc)
-        yield a, b
+            pids.append(proc.pid)
+        yield a, b, tuple(pids)
 
 
 def _open_when_up(endpoint: str) -> zenoh.Session:
@@ -555,14 +612,18 @@ def main(args: argparse.Namespace) -> int:
     window_s = float(args.fleet_window)
     print(f"fleet bench on {os.cpu_count()} cores; load average {os.getloadavg()[0]:.1f}")
     limit_before = opencv_limit("HD720", 5.0)
-    print(f"limit: bare OpenCV default reads {limit_before:.1f} HD720 frames/s in a loop")
+    print(
+        f"limit: bare OpenCV default reads {limit_before.fps:.1f} HD720 frames/s in a loop "
+        f"({limit_before.per_cpu_s:.1f} per CPU-second)"
+    )
     results = []
     shm = bool(args.fleet_shm)
     if shm:
         print("shared memory on: frames pass as references on this machine (bytes read: ~0)")
-    with _routers(shm=shm) as (router_a, router_b), _open_when_up(router_b) as session:
+    routers = _routers(shm=shm)
+    with routers as (router_a, router_b, router_pids), _open_when_up(router_b) as session:
         for n, m in _configs(args.fleet_configs):
-            fleet = Fleet(router_a, router_b, shm=shm)
+            fleet = Fleet(router_a, router_b, router_pids, shm=shm)
             result = run_config(
                 session, fleet, n, m, rate=rate, limit=limit_before, window_s=window_s
             )
@@ -570,7 +631,8 @@ def main(args: argparse.Namespace) -> int:
             print("\n".join(format_result(result, limit_before)), flush=True)
     limit_after = opencv_limit("HD720", 5.0)
     print(
-        f"limit after the runs: {limit_after:.1f} frames/s (before {limit_before:.1f}); "
+        f"limit after the runs: {limit_after.fps:.1f} frames/s, {limit_after.per_cpu_s:.1f} per "
+        f"CPU-second (before {limit_before.fps:.1f}, {limit_before.per_cpu_s:.1f}); "
         f"load average {os.getloadavg()[0]:.1f}"
     )
     return 0
