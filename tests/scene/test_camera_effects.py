@@ -285,6 +285,37 @@ def test_a_shadow_darkens_part_of_the_tag(seed: int, depth: float, soft: float) 
 
 
 @settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), depth=st.floats(0.4, 0.9), period=st.floats(0.3, 1.0))
+def test_stripes_cross_the_tag_and_its_surround_with_hard_edges(
+    seed: int, depth: float, period: float
+) -> None:
+    camera = CameraEffects(
+        stripes_probability=1.0, stripes_depth=(depth, depth), stripes_period=(period, period)
+    )
+    scene = facing_scene(camera, seed=seed)
+    before, after = as_float(facing_scene(NEUTRAL, seed=seed).image), as_float(scene.image)
+    (tag,) = scene.markers
+    ratio = (after[:, :, 1] + 1.0) / (before[:, :, 1] + 1.0)
+    assert np.all(ratio <= 1.0 + 1e-9)  # stripes only take light away
+    inside = inside_quad(tag.corners, after.shape)
+    around = inside_quad(tag.corners, after.shape, grow=1.8) & ~inside
+    white = before[:, :, 1] > 150  # the ratio of a dark pixel is mostly rounding
+    # on the tag and on the paper around it: stripes fully dark and fully lit, few between
+    for region in (inside & white, around & white):
+        shaded = np.abs(ratio[region] - (1.0 - depth)) < 0.06
+        lit = ratio[region] > 0.99
+        assert shaded.mean() > 0.05 and lit.mean() > 0.05
+        assert (shaded | lit).mean() > 0.8
+
+
+def test_no_stripes_unless_asked() -> None:
+    neutral = facing_scene(NEUTRAL, seed=3).image
+    assert np.array_equal(
+        facing_scene(CameraEffects(stripes_depth=(0.8, 0.8)), seed=3).image, neutral
+    )
+
+
+@settings(max_examples=15, deadline=None)
 @given(seed=st.integers(0, 10_000), strength=st.floats(0.6, 1.0))
 def test_glare_lies_partly_over_the_tag(seed: int, strength: float) -> None:
     camera = CameraEffects(glare_probability=1.0, glare_strength=(strength, strength))

@@ -72,8 +72,11 @@ class CameraParams:
     R gains of the light (`cast` names its kind). exposure_stops, black_crush, gamma: the tone
     curve (see `tone_curve`). shadow_* / glare_*: chance per tag, and strength, of a shadow or a
     glare blob across it; shadow_softness is the blur of the shadow's edge as a fraction of the
-    tag side. paper_texture: std of the paper's grain on white, grey levels. greyscale: a
-    monochrome (IR) sensor, output mono_offset + mono_contrast * luma on all three channels.
+    tag side. stripes_*: chance per tag of hard light stripes across it and its surround (sun
+    through blinds), the light the shadowed stripes block, and the stripes' period as a
+    fraction of the tag side. paper_texture: std of the paper's grain on white, grey levels.
+    greyscale: a monochrome (IR) sensor, output mono_offset + mono_contrast * luma on all three
+    channels.
     rolling_shutter_px: horizontal shift of the bottom row relative to the top row.
     jpeg_quality: 0 (no compression) or the JPEG quality, 4:2:0 chroma subsampling.
     """
@@ -89,6 +92,9 @@ class CameraParams:
     shadow_softness: float = 0.0
     glare_probability: float = 0.0
     glare_strength: float = 0.0
+    stripes_probability: float = 0.0
+    stripes_depth: float = 0.0
+    stripes_period: float = 0.0
     paper_texture: float = 0.0
     greyscale: bool = False
     mono_contrast: float = 1.0
@@ -112,6 +118,10 @@ class CameraEffects:
       crossing it, fraction of light it blocks, blur of its edge (fraction of the tag side).
     - glare_probability / glare_strength: chance per tag of a specular blob partly over it,
       blend towards white at its core.
+    - stripes_probability / stripes_depth / stripes_period: chance per tag of hard-edged
+      parallel stripes of shadow across it and the paper around it (sun through blinds, a
+      railing's shadow), the fraction of light the shadowed stripes block, and the period of
+      the stripes as a fraction of the tag side.
     - paper_texture: grain of the printed paper, std in grey levels on white (multiplicative;
       drawn afresh each frame, while a drive's shadows and glare stay put on their tags).
     - greyscale_probability / mono_contrast / mono_offset: chance of a monochrome (IR) frame and
@@ -131,6 +141,9 @@ class CameraEffects:
     shadow_softness: tuple[float, float] = (0.0, 0.0)
     glare_probability: float = 0.0
     glare_strength: tuple[float, float] = (0.0, 0.0)
+    stripes_probability: float = 0.0
+    stripes_depth: tuple[float, float] = (0.0, 0.0)
+    stripes_period: tuple[float, float] = (0.3, 1.0)
     paper_texture: tuple[float, float] = (0.0, 0.0)
     greyscale_probability: float = 0.0
     mono_contrast: tuple[float, float] = (1.0, 1.0)
@@ -151,11 +164,14 @@ class CameraEffects:
         _check_range("shadow_depth", self.shadow_depth, 0.0, 0.95)
         _check_range("shadow_softness", self.shadow_softness, 0.0, 1.0)
         _check_range("glare_strength", self.glare_strength, 0.0, 1.0)
+        _check_range("stripes_depth", self.stripes_depth, 0.0, 0.95)
+        _check_range("stripes_period", self.stripes_period, 0.1, 4.0)
         _check_range("paper_texture", self.paper_texture, 0.0, 40.0)
         _check_range("mono_contrast", self.mono_contrast, 0.05, 2.0)
         _check_range("mono_offset", self.mono_offset, 0.0, 200.0)
         _check_range("rolling_shutter_px", self.rolling_shutter_px, 0.0, 200.0)
-        for name in ("shadow_probability", "glare_probability", "greyscale_probability"):
+        probabilities = ("shadow_probability", "glare_probability", "stripes_probability")
+        for name in (*probabilities, "greyscale_probability"):
             _check_probability(name, getattr(self, name))
         if self.jpeg_quality != (0, 0):
             _check_range("jpeg_quality", self.jpeg_quality, 1, 100)
@@ -218,6 +234,9 @@ class CameraEffects:
             shadow_softness=pick(9, self.shadow_softness),
             glare_probability=self.glare_probability,
             glare_strength=pick(10, self.glare_strength),
+            stripes_probability=self.stripes_probability,
+            stripes_depth=pick(18, self.stripes_depth),
+            stripes_period=pick(19, self.stripes_period),
             paper_texture=pick(11, self.paper_texture),
             greyscale=bool(u[12] < self.greyscale_probability),
             mono_contrast=pick(16, self.mono_contrast),
@@ -304,6 +323,36 @@ def plan_tag_light(
         offset = minor * (1.2 * float(u[10]) - 0.6) / max(float(np.linalg.norm(inward)), 1e-9)
         polygon = _ellipse(edge_point + inward * offset, major, minor, math.pi * float(u[13]))
         lights.append(Light("glare", polygon, params.glare_strength, 0.5 * minor))
+    if u[14] < params.stripes_probability and params.stripes_depth > 0.0:
+        lights += _stripes(params, corners, side, np.random.default_rng(int(u[15] * 2**32)))
+    return lights
+
+
+def _stripes(
+    params: CameraParams,
+    corners: npt.NDArray[np.float64],
+    side: float,
+    rng: np.random.Generator,
+) -> list[Light]:
+    """Hard-edged parallel shadow stripes over a tag and 1.5 sides around it, at a random
+    angle and phase, each dark for 30-70 % of the period (``rng``: the tag's own draws)."""
+    u = rng.random(3)
+    theta = math.pi * float(u[0])
+    normal = np.array([math.cos(theta), math.sin(theta)])
+    along = np.array([-normal[1], normal[0]])
+    period = max(params.stripes_period * side, 2.0)
+    dark = period * (0.3 + 0.4 * float(u[1]))
+    reach = 2.0 * side  # the stripes cover the tag and the paper around it
+    centre = corners.mean(axis=0)
+    lights = []
+    offset = -reach + period * float(u[2])
+    while offset < reach:
+        near, far = centre + normal * offset, centre + normal * (offset + dark)
+        polygon = np.stack(
+            [near - along * reach, near + along * reach, far + along * reach, far - along * reach]
+        )
+        lights.append(Light("shadow", polygon, params.stripes_depth, min(1.0, 0.01 * side)))
+        offset += period
     return lights
 
 
