@@ -405,3 +405,14 @@ def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node:
             timeout=30,
             what="the streams' publisher tokens",
         )
+        # and the node subscribes each camera topic the pattern matched, as ROS tools list it
+        wait_until(
+            lambda: {"/front/image", "/rear/image"} <= set(_service_tokens(graph)),
+            timeout=30,
+            what="the cameras' subscription tokens",
+        )
+        tokens = _service_tokens(graph)
+        for name in ("front", "rear"):
+            token = tokens[f"/{name}/image"]
+            assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
+            assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]

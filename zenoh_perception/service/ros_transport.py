@@ -171,8 +171,9 @@ class RosTransport:
     ) -> _Subscription:
         """Subscribe ``key`` (the key of topic ``role``, or one it matches) for ``role``.
 
-        On an rmw_zenoh graph a topic named by a pattern has no liveliness token: a ROS name
-        holds no wildcard.
+        On an rmw_zenoh graph a topic named by a pattern has no liveliness token here: a ROS
+        name holds no wildcard (each camera topic it matches gets its own once its first frame
+        comes: :meth:`stream_subscription`).
         """
         topic = ros_topic(role)
         subscriber = self._session.declare_subscriber(key, callback)
@@ -180,6 +181,26 @@ class RosTransport:
         token = None if pattern else self._token(topic, SUBSCRIPTION)
         declared = None if token is None else self._session.liveliness().declare_token(token)
         return _Subscription(subscriber, declared)
+
+    def stream_subscription(self, key: str) -> zenoh.LivelinessToken | None:
+        """On an rmw_zenoh graph, the liveliness token of the node's subscription to the
+        concrete topic of ``key`` (a sample's key on a camera topic subscribed by a pattern),
+        so that ROS tools list the node among that topic's subscribers; None through the
+        bridge, or when no pattern subscription matches ``key``. Undeclare it when the
+        stream is forgotten."""
+        if not self.rmw_zenoh:
+            return None
+        concrete = zenoh.KeyExpr(key)
+        for role in ("camera", "compressed_camera"):
+            topic = ros_topic(role)
+            setting = str(getattr(self._settings, topic.key_setting))
+            if "*" not in setting or not zenoh.KeyExpr(self.key(role)).intersects(concrete):
+                continue
+            fq_topic = fully_qualified(self.node.namespace, self.topic_of(key))
+            token = self._token(topic, SUBSCRIPTION, fq_topic=fq_topic)
+            assert token is not None
+            return self._session.liveliness().declare_token(token)
+        return None
 
     def _type(self, topic: RosTopic) -> str:
         return topic.type_name(self._settings.ros_package)
@@ -191,15 +212,18 @@ class RosTransport:
         name = stream_key(str(getattr(self._settings, topic.key_setting)), stream)
         return fully_qualified(self.node.namespace, name)
 
-    def _token(self, topic: RosTopic, kind: str, stream: str = "") -> str | None:
-        """The liveliness token of a new entity of the node (None in bridge mode)."""
+    def _token(
+        self, topic: RosTopic, kind: str, stream: str = "", *, fq_topic: str = ""
+    ) -> str | None:
+        """The liveliness token of a new entity of the node (None in bridge mode), on the
+        topic of ``stream`` (or on ``fq_topic``, a fully qualified topic name)."""
         if not self.rmw_zenoh:
             return None
         entity_id, self._next_entity_id = self._next_entity_id, self._next_entity_id + 1
         return self.node.entity_token(
             entity_id,
             kind,
-            self._fq_topic(topic, stream),
+            fq_topic or self._fq_topic(topic, stream),
             self._type(topic),
             # the token names the type's hash even where the key matches every hash
             hash_=self._hash(topic),

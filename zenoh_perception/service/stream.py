@@ -198,6 +198,7 @@ class Stream:
         self._camera_info: CameraInfo | None = None
         self._declared: list[TopicPublisher] = []
         self._listener: Any = None
+        self._subscription: zenoh.LivelinessToken | None = None
         self._tag_pub: TopicPublisher | None = None
         self._record_pub: TopicPublisher | None = None
         self._debug_pub: TopicPublisher | None = None
@@ -252,6 +253,8 @@ class Stream:
 
     def _declare(self) -> None:
         shared, s, name = self._shared, self._shared.settings, self.name
+        # on an rmw_zenoh graph, the camera topic a pattern matched is listed as subscribed
+        self._subscription = shared.ros.stream_subscription(self.key) if self.key else None
         self._tag_pub = shared.publishers.ros("tag", name, express=True)
         self._declared.append(self._tag_pub)
         self._record_pub = shared.publishers.record(stream_key(s.record_key, name))
@@ -270,7 +273,8 @@ class Stream:
 
     def _release(self) -> None:
         entities: list[Any] = [self._listener] if self._listener is not None else []
-        self._listener = None
+        entities += [self._subscription] if self._subscription is not None else []
+        self._listener = self._subscription = None
         for entity in entities:
             try:
                 entity.undeclare()
