@@ -106,8 +106,13 @@ def test_the_keeper_arms_after_an_expensive_read_and_disarms_after_plain_frames(
     assert keeper.prepare(plain) is plain
     keeper.record(0.005, W * H)
     assert not keeper.armed
+    # a slow read without grids (a busy machine): one look on the next frame, no more
     keeper.record(0.5, W * H)
     assert keeper.armed
+    assert keeper.prepare(plain) is plain
+    keeper.record(0.005, W * H)
+    assert not keeper.armed
+    keeper.record(0.5, W * H)
     board = _gray(board_scene(W, H, 10, "straight").image)
     assert keeper.prepare(board) is not board
     keeper.record(0.005, W * H)
@@ -123,6 +128,15 @@ def test_the_keeper_arms_after_an_expensive_read_and_disarms_after_plain_frames(
         assert keeper.armed
         keeper.prepare(plain)
         keeper.record(0.005, W * H)
+    assert not keeper.armed
+
+
+def test_a_wary_keeper_looks_on_its_first_read_only_unless_grids_are_there() -> None:
+    plain = np.full((H, W), 128, np.uint8)
+    keeper = GridKeeper(armed=True)
+    assert keeper.armed
+    keeper.prepare(plain)
+    keeper.record(0.005, W * H)
     assert not keeper.armed
 
 

@@ -19,9 +19,9 @@ How a grid is told (on the frame at half size, in 16 px cells there):
   is among them. Only the squares centred in grid cells are painted over, so a marker beside
   a board keeps a margin of untouched pixels around it.
 
-:class:`GridKeeper` runs this only while it pays: after a read that took long for the
-frame's size, and for a few reads after the last grid found (a plain frame amid boards, a
-board out of view for a moment); plain frames otherwise cost one clock reading.
+:class:`GridKeeper` runs this only while it pays: on the frame after a read that took long
+for the frame's size, and for a few reads after the last grid found (a plain frame amid
+boards, a board out of view for a moment); plain frames otherwise cost one clock reading.
 """
 
 from __future__ import annotations
@@ -294,15 +294,16 @@ class GridKeeper:
     """Whether to look for grids before a whole-frame read, the frame to read, and which of
     the markers read there to keep.
 
-    Armed after a read that cost more than about 40 ns a pixel (15 ms at least) and for
-    ``_HOLD_READS`` reads after the last frame with a grid; then a quick read disarms it.
+    Armed for the read after one that cost more than about 40 ns a pixel (15 ms at least),
+    and for ``_HOLD_READS`` reads after the last frame with a grid; then a quick read
+    disarms it.
 
     ``armed``: look for grids from the first read (a detector that replaces one whose read
     stalled: the frames that stalled it are likely to come again).
     """
 
     def __init__(self, *, armed: bool = False) -> None:
-        self._hold = _HOLD_READS if armed else 0
+        self._hold = 1 if armed else 0
         self.armed = armed
         self._mask: npt.NDArray[np.bool_] | None = None
 
@@ -321,8 +322,11 @@ class GridKeeper:
     def record(self, seconds: float, pixels: int) -> None:
         """After the read of a frame of ``pixels`` that took ``seconds``."""
         budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
-        if self._mask is not None or seconds > budget:
-            self._hold = _HOLD_READS
+        if self._mask is not None:
+            self._hold = _HOLD_READS  # grids in view: they may well come back
+        elif seconds > budget:
+            # a look on the next frame; a slow read without grids (a busy machine) costs one
+            self._hold = max(self._hold, 1)
         elif self._hold > 0:
             self._hold -= 1
         self.armed = self._hold > 0
