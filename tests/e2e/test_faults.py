@@ -54,7 +54,7 @@ from tools.rig import MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.resolutions import RESOLUTIONS
-from zenoh_perception.service import node as service_module
+from zenoh_perception.service import session as service_module
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.records import TagCodec, decode_record

@@ -383,7 +383,7 @@ class _RefusingPublisher:
 def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     rig: Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rig.service._streams[""], "_tag_pub", _RefusingPublisher())
+    monkeypatch.setattr(rig.service._streams.serve(""), "_tag_pub", _RefusingPublisher())
     rig.put_raw(SCENE, seq=1)
     record = decode_record(rig.records.get(timeout=20).payload)
     assert record["seq"] == 1 and record["selected"]["tag_id"] == 7

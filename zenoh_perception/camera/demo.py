@@ -36,7 +36,8 @@ from zenoh_perception.scene import (
     Scene,
     SceneGenerator,
 )
-from zenoh_perception.service.node import PerceptionService, check_transport_limit
+from zenoh_perception.service.node import PerceptionService
+from zenoh_perception.service.session import check_transport_limit
 from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings

@@ -1,0 +1,115 @@
+"""The CameraInfos the service receives: each decoded and checked, handed to the streams it
+is for, and kept (a bounded number, the newest) for the streams made later.
+
+With a wildcard input a CameraInfo is its stream's (named as the frames' keys are); a
+concrete ``camera_info_key``'s is every stream's (kept under the name ``""``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from collections.abc import Mapping
+
+import zenoh
+
+from zenoh_perception.errors import CameraInfoError, IntrinsicsError
+from zenoh_perception.service.logs import kv
+from zenoh_perception.service.ros_transport import RosTransport
+from zenoh_perception.service.stats import LogGate, ServiceStats
+from zenoh_perception.service.stream import CameraInfo, Stream
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
+from zenoh_perception.wire.stream_keys import stream_name
+
+# the service's logger: its lines keep one logger= name, whatever module writes them
+log = logging.getLogger("zenoh_perception.service.node")
+
+
+class CameraInfos:
+    """The CameraInfo subscription's callback (:meth:`on_sample`) and the infos kept.
+
+    ``streams`` is the service's streams by name and ``lock`` the lock that guards them: an
+    info is kept and handed to the streams there in one step under it, so a stream made
+    meanwhile (which asks :meth:`for_stream` under the same lock) gets it either way.
+    """
+
+    def __init__(
+        self,
+        settings: Settings,
+        ros: RosTransport,
+        totals: ServiceStats,
+        gate: LogGate,
+        *,
+        named: bool,
+        streams: Mapping[str, Stream],
+        lock: threading.Lock,
+    ) -> None:
+        self._settings = settings
+        self._ros = ros
+        self._totals = totals
+        self._gate = gate
+        self._named = named
+        self._streams = streams
+        self._lock = lock
+        # CameraInfos by stream name ("" for every stream), for streams made later too
+        self._infos: OrderedDict[str, CameraInfo] = OrderedDict()
+
+    def for_stream(self, name: str) -> CameraInfo | None:
+        """The CameraInfo of a stream ``name`` made now, if any; call it holding ``lock``."""
+        return self._infos.get(name) or self._infos.get("")
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        """A CameraInfo arrived: counted, and used by its streams when it decodes."""
+        try:
+            check_camera_info_size(len(sample.payload))  # before the copy out of Zenoh
+            info = decode_camera_info(sample.payload.to_bytes())
+        except (CameraInfoError, IntrinsicsError) as err:
+            # Counted apart from frames: a bad CameraInfo is no frame, and the intrinsics in
+            # use stay as they were.
+            self._totals.on_camera_info(err.reason)
+            self._log_limited(
+                logging.WARNING,
+                f"camera_info:{err.reason}",
+                "camera_info_rejected",
+                reason=err.reason,
+                detail=err,
+            )
+            return
+        self._totals.on_camera_info(None)
+        intrinsics = info.intrinsics
+        camera: CameraInfo = (intrinsics, (info.width, info.height))
+        name = ""
+        if self._named:
+            topic = self._ros.topic_of(str(sample.key_expr))
+            name = stream_name(self._settings.camera_info_key, topic) or ""
+        with self._lock:
+            self._infos[name] = camera
+            self._infos.move_to_end(name)
+            while len(self._infos) > self._settings.max_streams:
+                self._infos.popitem(last=False)
+            targets = [s for s in self._streams.values() if name in ("", s.name) or not self._named]
+        changed = [stream.use_camera_info(camera) for stream in targets]
+        if any(changed):
+            # A camera whose intrinsics change on every message would flood the log: the
+            # line is rate-limited and the status always shows the intrinsics in use.
+            self._log_limited(
+                logging.INFO,
+                "intrinsics",
+                "intrinsics",
+                **({"stream": name} if self._named else {}),
+                fx=f"{intrinsics.fx:.2f}",
+                fy=f"{intrinsics.fy:.2f}",
+                cx=f"{intrinsics.cx:.2f}",
+                cy=f"{intrinsics.cy:.2f}",
+                width=info.width,
+                height=info.height,
+            )
+
+    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
+        """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
+        lines were left out since the last one."""
+        suppressed = self._gate.admit(key)
+        if suppressed is not None:
+            log.log(level, "event=%s %s", event, kv(**fields, suppressed=suppressed))

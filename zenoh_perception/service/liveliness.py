@@ -1,0 +1,62 @@
+"""The other perception services a service sees under its liveliness key: counted, and a
+warning (rate-limited) for each, since two services on the same keys publish every tag and
+record twice. A share group's members share the keys by design: they are not counted."""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import zenoh
+
+from zenoh_perception.service.logs import kv
+from zenoh_perception.service.stats import LogGate
+from zenoh_perception.settings import Settings
+
+# the service's logger: its lines keep one logger= name, whatever module writes them
+log = logging.getLogger("zenoh_perception.service.node")
+
+
+class OtherServices:
+    """The liveliness subscription's callback (:meth:`on_token`) and the count it keeps.
+
+    ``zid`` is the service's own (its token is left out); nothing is counted once ``stop`` is
+    set.
+    """
+
+    def __init__(
+        self, settings: Settings, gate: LogGate, *, zid: str, stop: threading.Event
+    ) -> None:
+        self._settings = settings
+        self._gate = gate
+        self._zid = zid
+        self._stop = stop
+        self._lock = threading.Lock()
+        #: The other services' tokens seen (their appearances: one that comes back counts
+        #: again).
+        self.count = 0
+
+    def on_token(self, sample: zenoh.Sample) -> None:
+        """Another perception service's liveliness token appeared (ours is left out).
+
+        Anyone may declare tokens under the key: one rate limit for the event, whatever the
+        name, and only a count kept.
+        """
+        other = str(sample.key_expr).rsplit("/", 1)[-1]
+        if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
+            return
+        if self._settings.share_group:
+            return  # the members of a group share the keys by design, one holder a stream
+        with self._lock:
+            self.count += 1
+        suppressed = self._gate.admit("another_service")
+        if suppressed is not None:
+            fields = kv(
+                zid=other,
+                liveliness=str(sample.key_expr),
+                tag=self._settings.tag_key,
+                detail="another perception service runs here; on the same keys every tag and "
+                "record is published twice: give each its own keys",
+                suppressed=suppressed,
+            )
+            log.warning("event=another_service %s", fields)
