@@ -14,15 +14,26 @@ from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import (
     GRID_SIZES,
+    MARGIN_MIN_BITS,
+    QUIET_LOCAL_MIN,
+    QUIET_MIN,
     REASONS,
+    TYPICAL_QUIET,
     Verifier,
     _cell_stats,
     _layout,
     decision_margin,
     dictionary_codes,
+    read_cells,
 )
 from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
-from zenoh_perception.scene import render_markers
+from zenoh_perception.scene import (
+    CameraEffects,
+    CameraModel,
+    Effects,
+    SceneGenerator,
+    render_markers,
+)
 from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import mean_side
@@ -269,3 +280,44 @@ def test_the_cells_statistics_are_exact_up_to_an_all_white_patch(marker_size: in
         got_mean, got_spread = _cell_stats(patch, layout)
         assert np.array_equal(got_mean, mean)
         assert np.array_equal(got_spread, spread)
+
+
+#: Hard light stripes across tags and the paper around them (sun through blinds).
+STRIPES = CameraEffects(
+    stripes_probability=1.0, stripes_depth=(0.5, 0.85), stripes_period=(0.3, 1.2)
+)
+
+
+@pytest.mark.parametrize(
+    ("seed", "scene", "tag_id", "rule"),
+    [
+        (4, 2, 49, "quiet_zone"),  # the marker lit, most of the paper round it in shadow
+        (1, 8, 45, "margin"),  # white cells in a shadow stripe, the others lit
+    ],
+)
+def test_a_true_tag_under_hard_light_stripes_is_kept(
+    seed: int, scene: int, tag_id: int, rule: str
+) -> None:
+    generator = SceneGenerator(
+        CameraModel.named("HD720"), seed=seed, effects=Effects(camera=STRIPES)
+    )
+    for _ in range(scene + 1):
+        drawn = generator.random_scene(3, side_px=(20, 160), max_tilt_deg=40)
+    gray = _grey(drawn.image)
+    (found,) = [d for d in OpenCvDetector("DICT_4X4_50").detect(gray) if d.tag_id == tag_id]
+    codes = dictionary_codes("DICT_4X4_50")
+    reading = read_cells(gray, found.corners, 4, bits=codes[4 * tag_id])
+    # judged against the whole marker's white cells, the stripes make it a look-alike ...
+    if rule == "quiet_zone":
+        assert reading.quiet < QUIET_MIN
+        # ... against the marker cells beside each ring cell, its quiet zone is paper
+        assert reading.quiet_local is not None and reading.quiet_local >= QUIET_LOCAL_MIN
+    else:
+        assert not TYPICAL_QUIET[0] <= reading.quiet <= TYPICAL_QUIET[1]
+        whole = np.clip(
+            (reading.cells[_layout(4).inner_cells] - reading.dark) / reading.contrast, 0, 1
+        )
+        assert decision_margin(whole.astype(np.float32), tag_id, codes) < MARGIN_MIN_BITS
+        # ... each cell against the cells around it, its own code is a clear read
+        assert decision_margin(reading.levels(), tag_id, codes) >= 2.0
+    assert Verifier("DICT_4X4_50").check(gray, found) is None

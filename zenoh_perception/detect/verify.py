@@ -17,7 +17,16 @@ its central half. On the scale from the border's median level (0) to the white c
   the "marker" is a dark patch on something dark (a key-cap with a light glyph on a dark
   keyboard, a letter on a book spine); above, its "white" cells are far darker than what
   surrounds it (a dark window or a faint glyph in a light scene). Ring cells outside the image
-  are left out: a marker at the image border keeps its chance;
+  are left out: a marker at the image border keeps its chance. Hard light stripes (sun through
+  blinds) put some of a true tag's cells and of the paper round it in shadow, so the ring can
+  read below QUIET_MIN of the lit white cells; such a ring still passes when its local level
+  (:func:`_local_quiet`: each ring cell between a border cell beside it and a white cell near
+  it, the pair whose light it shares, then the median) is at least :data:`QUIET_LOCAL_MIN`.
+  A dark patch on something dark reads as dark locally too (glyphs on book spines at most
+  0.40, the real corpus's at most 0.30), while the striped tags it keeps read 0.65-1.0. Above
+  QUIET_MAX no local reading helps: a marker in a shadow stripe with the paper round it lit
+  reads like a dark window on a light wall (every white cell darker than the ring), so that
+  case is still vetoed;
 - ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
   border cells may be nearer the white level than the border's;
 - ``grid``: the quad read on the grids of the families with more cells (up to 7 inner cells
@@ -32,11 +41,20 @@ its central half. On the scale from the border's median level (0) to the white c
   cross the cells scores about as well on another id. The best other id's score minus the
   own code's is the decision's margin, in bits; under :data:`MARGIN_MIN_BITS` the id is a
   coin toss between two codes (OpenCV decides each bit alone and never sees how close it was).
+  Each cell's level is read against the light around it (:func:`_local_levels`): between the
+  mean of the dark cells next to it (0) and the mean of the white cells within
+  :data:`LEVEL_WHITE_REACH` cells (1), dark and white as the code OpenCV read says, the cell
+  itself left out. Light is shared by neighbouring cells, so a white cell in a shadow stripe
+  reads white beside its shadowed neighbours, where on the whole marker's scale it read as
+  dark and made a true tag a close call.
   A blurred or noisy true tag can be such a close call too, so the rule vetoes it only when
   its quiet zone is not as light as a printed marker's (outside :data:`TYPICAL_QUIET`, within
   the wider bounds of ``quiet_zone``): a close call needs the surround of paper. Not applied
   to a dictionary with ids one bit apart (ARUCO_ORIGINAL), where a blurred true tag has no
   margin either.
+
+The white cells are those of the code OpenCV read (:class:`Verifier` passes it); without it,
+the inner cells lighter than midway between the border and the lightest cell.
 
 docs/benchmarks.md gives the distributions of these features on the true and false
 detections of the project's real corpus that set the thresholds, and what each rule removes.
@@ -61,8 +79,8 @@ from zenoh_perception.detect.types import Detection, dictionary_names
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
 Floats = npt.NDArray[np.float64]
-Cells = npt.NDArray[np.intp]
 Matrix = Sequence[Sequence[float]]  # a 3 x 3 matrix, row by row
+Bits = npt.NDArray[np.float32]
 
 #: The veto reasons, in the order they are checked.
 REASONS: Final = ("resolution", "quiet_zone", "border", "grid", "margin")
@@ -85,6 +103,21 @@ MARGIN_MIN_BITS: Final = 0.5
 TYPICAL_QUIET: Final = (0.8, 1.25)
 #: Pixels a cell of the finest grid gets in the warped patch (its central half: 4 x 4).
 FINEST_CELL_PX: Final = 8
+#: The local quiet level: how far (Chebyshev distance, cells) from a ring cell the border cells
+#: and the white inner cells it is judged against may lie. LOCAL_CONTRAST_MIN: the least
+#: difference, grey levels, between a white and a dark reference for a local level to count
+#: (fainter, the whole marker's scale is used): a faint pattern on a plain floor (13 px, 13
+#: grey levels of contrast, read as DICT_4X4_1000) reads as a clean code on the scale of its
+#: own neighbours; any bound from 8 to 32 keeps every figure of the module doc.
+LOCAL_BORDER_REACH: Final = 1
+LOCAL_WHITE_REACH: Final = 3
+LOCAL_CONTRAST_MIN: Final = 16.0
+#: A quiet zone below QUIET_MIN still passes when its local level (each ring cell against the
+#: marker cells near it) is at least this: the marker lit, the paper around it in a shadow.
+QUIET_LOCAL_MIN: Final = 0.5
+#: How far (Chebyshev distance, cells) from an inner cell the white cells that set its local
+#: white level lie (its dark level: the dark cells next to it).
+LEVEL_WHITE_REACH: Final = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,10 +126,25 @@ class Reading:
 
     side_px: float  # mean side of the quad, pixels
     quiet: float  # median level of the quiet zone's cells inside the image
+    # the same with each ring cell on the scale of the marker cells beside it (_local_quiet),
+    # read only when ``quiet`` is below QUIET_MIN (None otherwise): no rule looks at it then
+    quiet_local: float | None
     contrast: float  # white cells' level minus the border's, grey levels
     border_light: float  # share of border cells nearer the white level than the border's
     grid_ratio: float  # cells' spread on its own grid over the least on a finer grid
-    levels: npt.NDArray[np.float32]  # the inner cells' levels clipped to [0, 1], row by row
+    marker_size: int  # inner cells a side
+    cells: Floats  # mean of every cell of the own grid (ring, border, inner), row by row
+    white: Mask  # which inner cells are white, row by row
+    dark: float  # the border's median, grey levels
+
+    def levels(self) -> npt.NDArray[np.float32]:
+        """The inner cells' levels, each on the scale of the cells around it
+        (:func:`_local_levels`), clipped to [0, 1], row by row."""
+        layout = _layout(self.marker_size)
+        code = self.cells[layout.inner_cells]
+        fallback = (code - self.dark) / max(self.contrast, 1.0)
+        levels = _local_levels(self.cells, code, self.white, fallback, layout)
+        return np.minimum(np.maximum(levels, 0.0, out=levels), 1.0, out=levels).astype(np.float32)
 
 
 def _sides(corners: npt.NDArray[np.float32]) -> list[float]:
@@ -129,6 +177,19 @@ class _Layout:
     area: Floats  # pixels of each core
     finer_starts: npt.NDArray[np.intp]  # where each finer grid's cores start after the own's
     finer_cells: tuple[int, ...]  # how many cores each finer grid has
+    # each ring cell's (border cell, inner cell) pairs of :func:`_local_quiet`, grouped by ring
+    # cell in ``ring_cells``' order: the ring cell, the border cell and the inner cell as flat
+    # indices of the own grid, the inner cell also as its index in ``inner_cells``
+    pair_ring: npt.NDArray[np.intp]
+    pair_border: npt.NDArray[np.intp]
+    pair_inner: npt.NDArray[np.intp]
+    pair_code: npt.NDArray[np.intp]
+    pair_starts: npt.NDArray[np.intp]  # where each ring cell's pairs start
+    # for each inner cell (rows, ``inner_cells``' order): which cells of the own grid within
+    # one cell of it may be dark (border or inner), and which inner cells lie within
+    # LEVEL_WHITE_REACH of it (columns: ``inner_cells``' order); the cell itself left out
+    near_dark: Floats
+    near_inner: Floats
 
 
 def _cores(start: int, stop: int, cells: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
@@ -164,6 +225,8 @@ def _layout(marker_size: int) -> _Layout:
             corners[k] = np.concatenate([corners[k], (rows[:, None] * stride + cols).ravel()])
         areas.append(np.outer(high - low, high - low).ravel().astype(np.float64))
     finer_cells = [low.size**2 for low, _ in grids[1:]]
+    pairs = _local_pairs(ring, inner)
+    near_dark, near_inner = _neighbours(ring, inner)
     return _Layout(
         side,
         target,
@@ -177,6 +240,63 @@ def _layout(marker_size: int) -> _Layout:
         np.concatenate(areas),
         np.cumsum([0, *finer_cells], dtype=np.intp)[:-1],
         tuple(finer_cells),
+        *pairs,
+        near_dark,
+        near_inner,
+    )
+
+
+def _neighbours(ring: Mask, inner: Mask) -> tuple[Floats, Floats]:
+    """The tables ``near_dark`` and ``near_inner`` of :class:`_Layout`."""
+    rows, cols = np.indices(ring.shape)
+    flat = np.flatnonzero(inner)
+    r, c = rows.ravel(), cols.ravel()
+    reach = np.maximum(abs(r[flat, None] - r[None, :]), abs(c[flat, None] - c[None, :]))
+    itself = reach == 0
+    dark = (reach <= 1) & ~itself & ~ring.ravel()[None, :]
+    near = ((reach <= LEVEL_WHITE_REACH) & ~itself)[:, flat]
+    return dark.astype(np.float64), near.astype(np.float64)
+
+
+def _local_pairs(
+    ring: Mask, inner: Mask
+) -> tuple[
+    npt.NDArray[np.intp],
+    npt.NDArray[np.intp],
+    npt.NDArray[np.intp],
+    npt.NDArray[np.intp],
+    npt.NDArray[np.intp],
+]:
+    """For every ring cell (row-major order), every pair of a border cell within
+    :data:`LOCAL_BORDER_REACH` and an inner cell within :data:`LOCAL_WHITE_REACH` of it
+    (Chebyshev distance, in cells): the tables of :class:`_Layout`."""
+    cells = ring.shape[0]
+    border = ~ring & ~inner
+    rows, cols = np.indices(ring.shape)
+    inner_flat = np.flatnonzero(inner)
+    code_of = np.full(cells * cells, -1, np.intp)
+    code_of[inner_flat] = np.arange(inner_flat.size)
+    ring_of: list[int] = []
+    border_of: list[int] = []
+    inner_of: list[int] = []
+    starts: list[int] = []
+    for index in np.flatnonzero(ring).tolist():
+        row, col = divmod(index, cells)
+        reach = np.maximum(abs(rows - row), abs(cols - col))
+        near_border = np.flatnonzero(border & (reach <= LOCAL_BORDER_REACH)).tolist()
+        near_inner = np.flatnonzero(inner & (reach <= LOCAL_WHITE_REACH)).tolist()
+        starts.append(len(ring_of))
+        for b in near_border:
+            for w in near_inner:
+                ring_of.append(index)
+                border_of.append(b)
+                inner_of.append(w)
+    return (
+        np.array(ring_of, np.intp),
+        np.array(border_of, np.intp),
+        np.array(inner_of, np.intp),
+        code_of[np.array(inner_of, np.intp)],
+        np.array(starts, np.intp),
     )
 
 
@@ -275,24 +395,78 @@ def _inverse(matrix: Floats) -> Matrix | None:
     )
 
 
-def _ring_inside(gray: Gray, quad: npt.NDArray[np.float32], warp: Floats, layout: _Layout) -> Cells:
-    """The own grid's ring cells (flat indices) whose central part is inside the image
-    (``warp``: the homography from the image to the patch of the marker at ``quad``)."""
+def _ring_inside(
+    gray: Gray, quad: npt.NDArray[np.float32], warp: Floats, layout: _Layout
+) -> Mask | None:
+    """Which of the own grid's ring cells (``layout.ring_cells``' order) have their central
+    part inside the image, None when all have (``warp``: the homography from the image to the
+    patch of the marker at ``quad``)."""
     back = _inverse(warp)
     # this inverse differs from OpenCV's homography by rounding, far below _well_inside's
     # margin: when it tells "well inside", OpenCV's would have told so too
     if back is not None and _well_inside(back, layout.side_px - 1.0, gray.shape[1], gray.shape[0]):
-        return layout.ring_cells
+        return None
     exact = np.asarray(cv2.getPerspectiveTransform(layout.target, quad), np.float64)
     inside = _inside(gray, exact, layout).ravel()
-    return layout.ring_cells[inside[layout.ring_cells]]
+    return np.asarray(inside[layout.ring_cells], bool)
+
+
+def _local_quiet(grid: Floats, white: Mask, inside: Mask | None, layout: _Layout) -> float | None:
+    """The median over the ring cells inside the image (``inside``, None: all) of each one's
+    level between a border cell next to it (0) and a white inner cell near it (1) (``white``:
+    which inner cells are white, ``layout.inner_cells``' order), the pair that puts it nearest
+    1: the light a ring cell shares with some marker cells beside it. None when no ring cell
+    has such a pair."""
+    ring = grid[layout.pair_ring]
+    border = grid[layout.pair_border]
+    span = grid[layout.pair_inner] - border
+    valid = white[layout.pair_code] & (span >= LOCAL_CONTRAST_MIN)
+    level = (ring - border) / np.maximum(span, LOCAL_CONTRAST_MIN)
+    below = np.maximum.reduceat(
+        np.where(valid & (level <= 1.0), level, -np.inf), layout.pair_starts
+    )
+    above = np.minimum.reduceat(np.where(valid & (level >= 1.0), level, np.inf), layout.pair_starts)
+    best = np.where(above - 1.0 < 1.0 - below, above, below)
+    keep = np.isfinite(best)
+    if inside is not None:
+        keep &= inside
+    values = best[keep].tolist()
+    return _median(values) if values else None
+
+
+def _local_levels(
+    grid: Floats, code: Floats, white: Mask, fallback: Floats, layout: _Layout
+) -> Floats:
+    """Each inner cell's level between the mean of the dark cells next to it (border cells and
+    inner cells not ``white``: 0) and the mean of the white inner cells within
+    :data:`LEVEL_WHITE_REACH` of it (1): the light around it, not the whole marker's; where it
+    has no such neighbours, or they differ by less than :data:`LOCAL_CONTRAST_MIN`, its level
+    in ``fallback``."""
+    is_white = white.astype(np.float64)
+    is_dark = np.ones(grid.size)
+    is_dark[layout.inner_cells] = 1.0 - is_white
+    dark_count = layout.near_dark @ is_dark
+    white_count = layout.near_inner @ is_white
+    low = (layout.near_dark @ (grid * is_dark)) / np.maximum(dark_count, 1.0)
+    high = (layout.near_inner @ (code * is_white)) / np.maximum(white_count, 1.0)
+    span = high - low
+    ok = (dark_count > 0) & (white_count > 0) & (span >= LOCAL_CONTRAST_MIN)
+    local = (code - low) / np.maximum(span, LOCAL_CONTRAST_MIN)
+    return np.where(ok, local, fallback)
 
 
 def read_cells(
-    gray: Gray, corners: npt.NDArray[np.float32], marker_size: int, side_px: float | None = None
+    gray: Gray,
+    corners: npt.NDArray[np.float32],
+    marker_size: int,
+    side_px: float | None = None,
+    bits: Bits | None = None,
 ) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
-    side, as a :class:`Reading` (``side_px``: the quad's mean side, when the caller has it)."""
+    side, as a :class:`Reading` (``side_px``: the quad's mean side, when the caller has it;
+    ``bits``: the code OpenCV read, 0/1 per inner cell row by row as
+    :func:`dictionary_codes` gives it, which tells the white cells; without it, the cells
+    lighter than midway between the border and the lightest cell)."""
     if side_px is None:
         side_px = sum(_sides(corners)) / 4
     layout = _layout(marker_size)
@@ -314,8 +488,15 @@ def read_cells(
     light = _median(whites) if whites else dark
     contrast = light - dark
     scale = max(contrast, 1.0)
-    ring = grid[_ring_inside(gray, quad, warp, layout)].tolist()
+    inside = _ring_inside(gray, quad, warp, layout)
+    cells_ring = grid[layout.ring_cells]
+    ring = (cells_ring if inside is None else cells_ring[inside]).tolist()
     quiet = _median([(value - dark) / scale for value in ring]) if ring else 1.0
+    white = np.asarray(code > split if bits is None else bits > 0.5, bool)
+    quiet_local: float | None = None
+    if quiet < QUIET_MIN:
+        local = _local_quiet(grid, white, inside, layout)
+        quiet_local = quiet if local is None else local
     border_light = len([value for value in border if (value - dark) / scale > 0.5]) / len(border)
     marker = spreads[layout.marker_cells]
     own = float(np.add.reduce(marker)) / marker.size
@@ -326,12 +507,18 @@ def read_cells(
     else:
         least = own
     grid_ratio = own / max(least, 1e-3)
-    levels = (code - dark) / scale
-    inner = np.minimum(np.maximum(levels, 0.0, out=levels), 1.0, out=levels).astype(np.float32)
-    return Reading(side_px, quiet, contrast, border_light, grid_ratio, inner)
-
-
-Bits = npt.NDArray[np.float32]
+    return Reading(
+        side_px,
+        quiet,
+        quiet_local,
+        contrast,
+        border_light,
+        grid_ratio,
+        marker_size,
+        grid,
+        white,
+        dark,
+    )
 
 
 @cache
@@ -380,8 +567,10 @@ def decision_margin(levels: Bits, tag_id: int, codes: Bits) -> float:
 def veto_reason(reading: Reading) -> str | None:
     """The first of :data:`REASONS` from the cells' levels that rejects ``reading``, or None
     (the code's margin is checked apart, by :meth:`Verifier.check`)."""
-    if not QUIET_MIN <= reading.quiet <= QUIET_MAX:
+    if reading.quiet > QUIET_MAX:
         return "quiet_zone"
+    if reading.quiet_local is not None and reading.quiet_local < QUIET_LOCAL_MIN:
+        return "quiet_zone"  # below QUIET_MIN, on the whole marker's scale and on the local one
     if reading.border_light > BORDER_LIGHT_MAX:
         return "border"
     if reading.grid_ratio > GRID_RATIO_MAX:
@@ -404,6 +593,7 @@ class Verifier:
         self._sizes = {name: int(aruco_dictionary(name).markerSize) for name in names}
         # ids one bit apart (ARUCO_ORIGINAL) leave a true tag no margin once it is blurred
         self._codes = {name: dictionary_codes(name) for name in names if min_distance(name) > 1}
+        self._all_codes = {name: dictionary_codes(name) for name in names}
         self._first = names[0]
         self._shape: tuple[int, ...] = ()
         self._kept: list[Detection] = []
@@ -415,7 +605,9 @@ class Verifier:
         sides = _sides(detection.corners)
         if min(sides) < MIN_PX_PER_CELL * (size + 2):
             return "resolution"
-        reading = read_cells(gray, detection.corners, size, sum(sides) / 4)
+        every = self._all_codes[name]
+        bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
+        reading = read_cells(gray, detection.corners, size, sum(sides) / 4, bits)
         reason = veto_reason(reading)
         if reason is not None:
             return reason
@@ -424,7 +616,7 @@ class Verifier:
             return None  # no margin rule for this dictionary, or not one of its ids
         if TYPICAL_QUIET[0] <= reading.quiet <= TYPICAL_QUIET[1]:
             return None  # a printed marker's surround: a close call on the id stands
-        margin = decision_margin(reading.levels, detection.tag_id, codes)
+        margin = decision_margin(reading.levels(), detection.tag_id, codes)
         return "margin" if margin < MARGIN_MIN_BITS else None
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
