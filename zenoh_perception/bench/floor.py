@@ -3,7 +3,10 @@ nothing else. It copies each frame out of Zenoh and answers it at once on the ta
 no-tag ``StarterProjectTag`` and on the record key with an empty record of the same ``seq``.
 
 The bench times it in lockstep beside the services, on the same camera and frames: a service's
-own cost is its end-to-end time minus this one's. Run as
+own cost is its end-to-end time minus this one's. With ``--detect`` it is also OpenCV's default
+bare, read in the callback before the answer (BGRA to grey and ``detectMarkers``, the least a
+reader must do): the peer a user would write in a few lines, whose process idles between
+frames exactly as the service's does. Run as
 ``python -m zenoh_perception.bench.floor -l ENDPOINT -e ENDPOINT --input-key K --tag-key K
 --record-key K`` (other service flags are accepted and ignored); it runs until SIGTERM.
 """
@@ -14,12 +17,16 @@ import argparse
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from typing import Any
 
+import cv2
 import msgpack
+import numpy as np
 import zenoh
 
 from zenoh_perception.bench._loopback import loopback_config
+from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.tags.selection import NO_TAG
 from zenoh_perception.wire.records import TagCodec
 
@@ -35,6 +42,21 @@ def _seq(sample: zenoh.Sample) -> int:
     return int(meta.get("seq", -1)) if isinstance(meta, dict) else -1
 
 
+def _opencv(dictionary: str) -> Callable[[bytes, zenoh.Sample], None]:
+    """OpenCV's default detector on a raw BGRA frame (its size from the attachment)."""
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
+
+    def detect(pixels: bytes, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment
+        if attachment is None:
+            return
+        meta: Any = msgpack.unpackb(attachment.to_bytes(), raw=False)
+        image = np.frombuffer(pixels, np.uint8).reshape(int(meta["height"]), int(meta["width"]), 4)
+        detector.detectMarkers(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY))
+
+    return detect
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m zenoh_perception.bench.floor")
     parser.add_argument("-l", "--listen", action="append", default=[])
@@ -42,7 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--input-key", required=True)
     parser.add_argument("--tag-key", required=True)
     parser.add_argument("--record-key", required=True)
+    parser.add_argument("--detect", action="store_true")
+    parser.add_argument("--dictionary", default="DICT_4X4_50")
     args, _ignored = parser.parse_known_args(argv)
+    detect = _opencv(args.dictionary) if args.detect else None
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -52,7 +77,9 @@ def main(argv: list[str] | None = None) -> int:
         records = session.declare_publisher(args.record_key)
 
         def answer(sample: zenoh.Sample) -> None:
-            sample.payload.to_bytes()  # the one copy out of Zenoh the service makes too
+            pixels = sample.payload.to_bytes()  # the one copy out of Zenoh the service makes too
+            if detect is not None:
+                detect(pixels, sample)
             record = {"seq": _seq(sample), "tags": [], "timing": _TIMING}
             tags.put(tag)
             records.put(msgpack.packb(record))

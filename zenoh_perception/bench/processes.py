@@ -49,6 +49,8 @@ Image = npt.NDArray[np.uint8]
 E2E_DETECTORS: Final = ("opencv", "tracking")
 #: The transport floor's name among them (:mod:`zenoh_perception.bench.floor`).
 FLOOR: Final = "floor"
+#: The floor reading each frame with OpenCV's default in its callback (``floor --detect``).
+OPENCV_PEER: Final = "opencv-peer"
 #: seq of the warm-up frames (never a measured frame's).
 WARMUP_SEQ: Final = 10**9
 #: A service process must answer within this (its start-up imports OpenCV and Zenoh, which can
@@ -156,9 +158,10 @@ class ServiceProcess:
         self.record_key = f"{prefix}/tags"
         self.status_key = f"{prefix}/status"
         self._log = tempfile.TemporaryFile("w+", encoding="utf-8")  # noqa: SIM115 - stop()
-        module = (
-            ("zenoh_perception.bench.floor",) if detector == FLOOR else ("zenoh_perception", "run")
-        )
+        peer = detector in (FLOOR, OPENCV_PEER)
+        module = ("zenoh_perception.bench.floor",) if peer else ("zenoh_perception", "run")
+        if detector == OPENCV_PEER:
+            extra = ("--detect", *extra)
         self.proc = start_service(
             loopback_endpoint(),
             self._log,
@@ -366,7 +369,7 @@ def services(
     remotes: dict[str, Remote] = {}
     try:
         for name in names:
-            extra = () if name == FLOOR else flags
+            extra = () if name in (FLOOR, OPENCV_PEER) else flags
             processes.append(ServiceProcess(name, name, bench_endpoint, dictionary, extra))
             remotes[name] = Remote(session, processes[-1])
         for remote in remotes.values():
