@@ -176,6 +176,20 @@ def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> Non
         demo.main(loopback_config(), small, resolution="VGA", limit=1)
 
 
+@pytest.mark.parametrize("camera_only", [True, False])
+def test_a_wildcard_input_key_is_refused_the_camera_publishes_on_it(camera_only: bool) -> None:
+    wildcard = Settings(
+        input_key="cams/*/image",
+        compressed_input_key="",
+        tag_key="cams/{stream}/tag",
+        record_key="cams/{stream}/tags",
+        debug_image_key="cams/{stream}/debug",
+        detections_key="cams/{stream}/detections",
+    )
+    with pytest.raises(SettingsError, match="input_key = 'cams/\\*/image'"):
+        demo.main(loopback_config(), wildcard, camera_only=camera_only, limit=1)
+
+
 def test_camera_announces_its_key_while_it_publishes(endpoint: str) -> None:
     scenes = SceneGenerator(CameraModel.named("VGA"), seed=5).drive(2, n_tags=1)
     tokens: list[tuple[str, str]] = []

@@ -43,6 +43,7 @@ from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
 from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encode_image_cdr
 from zenoh_perception.wire.records import decode_record
+from zenoh_perception.wire.stream_keys import has_wildcard
 from zenoh_perception.wire.text import format_decoded_record
 
 DRIVE_SECONDS = 12.0
@@ -292,10 +293,18 @@ def main(
 
     Raises:
         SettingsError: a frame of ``resolution`` exceeds ``settings.max_frame_bytes``, or that
-            limit exceeds Zenoh's message limit.
+            limit exceeds Zenoh's message limit; ``input_key``, which the camera publishes on,
+            holds a wildcard.
         SessionError: the Zenoh session cannot be opened.
 
     """
+    if has_wildcard(settings.input_key):
+        msg = (
+            f"input_key = {settings.input_key!r}: the demo's camera publishes on it, so it must "
+            "be one camera's key (e.g. 'rover/front/image'); run the service on the wildcard "
+            "apart"
+        )
+        raise SettingsError(msg)
     if not camera_only:
         check_transport_limit(conf, settings)
     stop = stop or threading.Event()
