@@ -321,3 +321,24 @@ def test_a_true_tag_under_hard_light_stripes_is_kept(
         # ... each cell against the cells around it, its own code is a clear read
         assert decision_margin(reading.levels(), tag_id, codes) >= 2.0
     assert Verifier("DICT_4X4_50").check(gray, found) is None
+
+
+def test_pictograms_on_cardboard_are_vetoed_for_their_strokes() -> None:
+    # handling pictograms (arrows, umbrella, glass, crossed boxes) read as DICT_4X4 ids: their
+    # strokes do not follow the cell grid; a few small blurred ones are clean codes and stay
+    rng = np.random.default_rng(11)
+    opencv = OpenCvDetector("DICT_4X4_1000")
+    verifier = Verifier("DICT_4X4_1000")
+    reported = 0
+    kept_ids = 0
+    reasons: Counter[str] = Counter()
+    for _ in range(FRAMES):
+        grey = _grey(lookalike_frame("pictograms", "DICT_4X4_1000", rng))
+        found = opencv.detect(grey)
+        reported += len(found)
+        kept, vetoed = verifier.verify(grey, found)
+        kept_ids += len(kept)
+        reasons.update(vetoed)
+    assert reported > 20
+    assert kept_ids <= 0.25 * reported
+    assert reasons["strokes"] > 0

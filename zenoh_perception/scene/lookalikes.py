@@ -12,7 +12,11 @@ hidden in it where a real look-alike happens to hold one (the detector decodes n
 - ``other_family``: markers of families whose grid has another number of cells, printed with
   their quiet zone, 24 px a side or more (a family of the same grid size reads the same cells
   as the dictionary: only the codes tell them apart, and OpenCV has read those; and under
-  about 24 px a cell has too few pixels to tell one grid size from another).
+  about 24 px a cell has too few pixels to tell one grid size from another);
+- ``pictograms``: handling pictograms printed on cardboard boxes, 14-34 px: a white symbol in
+  a dark square (ISO 780 "this way up": two arrows and a bar; "keep dry": an umbrella;
+  "fragile": a glass; "do not stack": two boxes crossed out), whose strokes OpenCV reads as
+  the white cells of a 4 x 4 code (no code is hidden: the symbols themselves read as ids).
 
 :func:`lookalike_frame` draws one frame of a kind; :func:`true_tag_frame` draws true markers
 of the dictionary, small, blurred, oblique, in shadow and JPEG'd, on a light ground, the
@@ -37,6 +41,7 @@ from zenoh_perception.scene._raster import (
     homography,
     marker_patch,
     paste,
+    patch_outline,
     to_bgra,
     u8,
 )
@@ -45,6 +50,12 @@ Image = npt.NDArray[np.uint8]
 
 #: Every look-alike kind.
 LOOKALIKE_KINDS: Final = ("keys", "text", "tiles", "other_family")
+#: Every kind :func:`lookalike_frame` draws. ``pictograms`` is not among the bench's kinds: the
+#: veto removes about 98 in 100 of the ids OpenCV reads on them, not all (a glass or a pair of
+#: arrows at 14-17 px, blurred, is a clean enough code), and the bench asks for none.
+DRAWN_KINDS: Final = (*LOOKALIKE_KINDS, "pictograms")
+#: The symbols ``pictograms`` draws.
+PICTOGRAMS: Final = ("this_way_up", "keep_dry", "fragile", "do_not_stack")
 #: One dictionary of each family: the families ``other_family`` draws from.
 FAMILIES: Final = (
     "DICT_4X4_50",
@@ -212,14 +223,75 @@ def _other_family(dictionary: str, width: int, height: int, rng: np.random.Gener
     return canvas
 
 
+#: The side of the square a pictogram is drawn in before it is put on the frame, pixels.
+_PICTOGRAM_PX: Final = 64
+
+
+def pictogram(symbol: str, ground: int, ink: int) -> Image:
+    """A handling pictogram (:data:`PICTOGRAMS`) drawn in ``ink`` on a square of ``ground``
+    (grey, :data:`_PICTOGRAM_PX` a side)."""
+    art = np.full((_PICTOGRAM_PX, _PICTOGRAM_PX), ground, np.uint8)
+    colour = (ink,)
+    if symbol == "this_way_up":  # two arrows and a bar
+        for cx in (20, 44):
+            cv2.line(art, (cx, 50), (cx, 20), colour, 5)
+            head = np.array([[cx - 9, 22], [cx + 9, 22], [cx, 8]], np.int32)
+            cv2.fillConvexPoly(art, head, colour)
+        cv2.rectangle(art, (10, 53), (54, 57), colour, -1)
+    elif symbol == "keep_dry":  # an umbrella and rain drops
+        cv2.ellipse(art, (32, 30), (22, 16), 0, 180, 360, colour, -1)
+        cv2.line(art, (32, 30), (32, 52), colour, 3)
+        cv2.ellipse(art, (28, 52), (4, 4), 0, 0, 180, colour, 3)
+        for x in (14, 50):
+            cv2.line(art, (x, 8), (x - 3, 14), colour, 2)
+    elif symbol == "fragile":  # a wine glass with a crack
+        bowl = np.array([[18, 10], [46, 10], [38, 34], [26, 34]], np.int32)
+        cv2.fillConvexPoly(art, bowl, colour)
+        cv2.line(art, (32, 34), (32, 50), colour, 3)
+        cv2.line(art, (22, 52), (42, 52), colour, 4)
+        cv2.line(art, (26, 12), (34, 22), (ground,), 2)
+    elif symbol == "do_not_stack":  # two boxes, crossed out
+        cv2.rectangle(art, (20, 30), (44, 52), colour, 3)
+        cv2.rectangle(art, (20, 8), (44, 26), colour, 3)
+        cv2.line(art, (12, 8), (52, 52), colour, 3)
+        cv2.line(art, (52, 8), (12, 52), colour, 3)
+    else:
+        raise SceneError(f"unknown pictogram {symbol!r} (known: {PICTOGRAMS})")
+    return art
+
+
+def _pictograms(dictionary: str, width: int, height: int, rng: np.random.Generator) -> Image:
+    del dictionary  # the symbols are the same whatever the dictionary
+    canvas = canvas_from(width, height, int(rng.integers(120, 200)))  # cardboard grey
+    outline = patch_outline(_PICTOGRAM_PX, _PICTOGRAM_PX)
+    y = 10.0
+    while y + 40.0 < height:
+        x = 10.0
+        while x + 40.0 < width:
+            side = float(rng.uniform(14.0, 34.0))
+            symbol = PICTOGRAMS[int(rng.integers(len(PICTOGRAMS)))]
+            art = pictogram(symbol, int(rng.integers(15, 60)), int(rng.integers(190, 250)))
+            quad = _skewed(x, y, side, rng, 0.08)  # a box face seen slightly askew
+            paste(canvas, art, homography(outline, quad), pixel_art=False)
+            x += side * 1.8
+        y += 40.0
+    return canvas
+
+
 def lookalike_frame(
     kind: str, dictionary: str, rng: np.random.Generator, width: int = 640, height: int = 480
 ) -> Image:
-    """One BGRA frame of look-alikes of ``kind`` (:data:`LOOKALIKE_KINDS`) for ``dictionary``:
+    """One BGRA frame of look-alikes of ``kind`` (:data:`DRAWN_KINDS`) for ``dictionary``:
     it holds no marker of ``dictionary``, so every id read on it is false."""
-    draw = {"keys": _keys, "text": _text, "tiles": _tiles, "other_family": _other_family}
+    draw = {
+        "keys": _keys,
+        "text": _text,
+        "tiles": _tiles,
+        "other_family": _other_family,
+        "pictograms": _pictograms,
+    }
     if kind not in draw:
-        raise SceneError(f"unknown look-alike kind {kind!r} (known: {LOOKALIKE_KINDS})")
+        raise SceneError(f"unknown look-alike kind {kind!r} (known: {DRAWN_KINDS})")
     canvas = draw[kind](dictionary, width, height, rng)
     blur = float(rng.uniform(0.0, 0.8))
     if blur > 0.3:
