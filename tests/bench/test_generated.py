@@ -24,6 +24,7 @@ REPORT_KEYS = {
     "plan",
     "sets",
     "lookalikes",
+    "range",
     "e2e",
     "throughput",
     "e2e_setup",
@@ -52,6 +53,7 @@ def test_the_report_has_every_part_and_the_plan(quick: BenchRun) -> None:
         "seed": plan.seed,
         "e2e_passes": plan.e2e_passes,
         "busy_board_frames": plan.busy_board_frames,
+        "range_frames": plan.range_frames,
     }
     assert report["machine"]["cpus"] >= 1
 
@@ -154,6 +156,7 @@ def test_main_writes_the_report_and_exits_1_when_a_goal_fails(
         e2e_passes=1,
         board_squares=BOARD_SQUARES_QUICK,
         busy_board_frames=10,
+        range_frames=4,
     )
     assert (with_e2e, shm) == (False, False)
 

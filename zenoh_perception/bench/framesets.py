@@ -54,6 +54,7 @@ class Plan:
     e2e_passes: int = 3
     board_squares: tuple[int, ...] = BOARD_SQUARES
     busy_board_frames: int = 30  # sent at 5 Hz, a plain frame every tenth
+    range_frames: int = 20  # per distance of the range figure (bench.reach)
 
     @classmethod
     def full(cls) -> Plan:
@@ -70,6 +71,7 @@ class Plan:
             e2e_passes=2,
             board_squares=BOARD_SQUARES_QUICK,
             busy_board_frames=10,
+            range_frames=4,
         )
 
 

@@ -53,6 +53,7 @@ from zenoh_perception.bench.lookalikes import lookalike_report
 from zenoh_perception.bench.plot import plot
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigterm_exits
 from zenoh_perception.bench.progress import Progress
+from zenoh_perception.bench.reach import DISTANCES_M, range_report
 from zenoh_perception.bench.report import format_report
 from zenoh_perception.bench.runners import DICTIONARY, Baseline, Project, board_case, compare
 from zenoh_perception.bench.scoring import rounded
@@ -74,6 +75,7 @@ def run_bench(plan: Plan, *, with_e2e: bool = True, shm: bool = True) -> dict[st
     work = (len(RESOLUTIONS) * plan.frames + plan.video_frames + plan.distractor_frames) * 2
     work += (plan.frames + plan.video_frames) * 2
     work += len(FAMILIES) * (len(LOOKALIKE_KINDS) + 1) * plan.lookalike_frames
+    work += len(DISTANCES_M) * plan.range_frames
     work += len(BOARD_KINDS) * len(plan.board_squares)
     if with_e2e:
         work += (plan.frames + 2 * plan.video_frames) * max(1, plan.e2e_passes)
@@ -107,6 +109,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
             "seed": plan.seed,
             "e2e_passes": plan.e2e_passes,
             "busy_board_frames": plan.busy_board_frames,
+            "range_frames": plan.range_frames,
         },
         "sets": {},
     }
@@ -137,6 +140,7 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
         report["boards"]["paced"] = paced_images("opencv", storm, after, shm=shm)
         report["boards"]["busy"] = busy_board(after, shm=shm, frames=plan.busy_board_frames)
     report["lookalikes"] = lookalike_report(plan.lookalike_frames, plan.seed, progress=progress)
+    report["range"] = range_report(plan.range_frames, plan.seed, progress=progress)
     report["goals"] = goals(report)
     return report
 

@@ -33,6 +33,8 @@ INDEPENDENT_E2E_RATIO: Final = 1.0
 CENTRE_ERROR_PX: Final = 0.5
 
 
+#: The service's range over OpenCV default's (bench.reach).
+RANGE_RATIO: Final = 1.3
 #: A frame with a checkerboard over half of it, answered within this (median, ms).
 BOARD_MEDIAN_MS: Final = 60.0
 #: What looking out for grids may add to a plain frame (ms).
@@ -155,6 +157,16 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
         )
     if "lookalikes" in report:
         rows += lookalike_goals(report["lookalikes"])
+    if "range" in report:
+        reached = report["range"]["range_m"]
+        service, opencv = reached["service"], reached["opencv"]
+        add(
+            "range: a 20 cm tag found in 90 % of HD720 frames (m)",
+            service,
+            f">= {RANGE_RATIO} x {opencv:g}",
+            service >= RANGE_RATIO * opencv,
+            f"OpenCV default {opencv:g} m",
+        )
     return rows
 
 

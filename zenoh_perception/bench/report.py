@@ -49,8 +49,23 @@ def format_report(report: dict[str, Any]) -> str:
         parts.append(_throughput(report["throughput"]))
     if "boards" in report:
         parts.append(_boards(report["boards"]))
+    if "range" in report:
+        parts.append(_range(report["range"]))
     parts.append(goals_table(report["goals"], lambda v: fmt(v, ".3f")))
     return "\n\n".join(parts)
+
+
+def _range(case: dict[str, Any]) -> str:
+    """The range figure: per distance the share of frames each detector found the tag in."""
+    shares = case["found_share"]
+    names = list(shares)
+    rows = [[f"{float(d):g} m", *(f"{shares[n][d]:.0%}" for n in names)] for d in shares[names[0]]]
+    rows.append(["range (90 % of frames)", *(f"{case['range_m'][n]:g} m" for n in names)])
+    title = (
+        f"A {case['tag_m'] * 100:g} cm DICT_4X4_50 tag at each distance, {case['resolution']}, "
+        f"{case['frames_per_distance']} frames each: share found\n"
+    )
+    return title + table(["distance", *names], rows)
 
 
 def _boards(case: dict[str, Any]) -> str:
