@@ -24,6 +24,7 @@ import pytest
 import zenoh
 
 from zenoh_perception.bench._loopback import free_port, loopback_config, loopback_endpoint
+from zenoh_perception.settings import Settings
 
 REPO = Path(__file__).resolve().parent.parent
 #: How long a test waits, by default, for something that should come: generous, since it
@@ -282,3 +283,16 @@ def json_objects(text: str) -> list[dict[str, object]]:
         value, index = decoder.raw_decode(text, index)
         objects.append(value)
     return objects
+
+
+#: Settings of a service with a stream per camera: ``cams/<name>/image`` answered on
+#: ``cams/<name>/...``.
+STREAMS = Settings(
+    stats_interval_s=0,
+    input_key="cams/*/image",
+    compressed_input_key="",
+    tag_key="cams/{stream}/tag",
+    record_key="cams/{stream}/perception/tags",
+    debug_image_key="cams/{stream}/debug",
+    detections_key="cams/{stream}/detections",
+)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tests.helpers import Collector, loopback_config, open_session, parse_pairs, wait_until
+from tests.helpers import STREAMS, Collector, loopback_config, open_session, parse_pairs, wait_until
 from zenoh_perception.camera import demo
 from zenoh_perception.camera.demo import (
     MIN_READABLE_SIDE_PX,
@@ -178,16 +178,8 @@ def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> Non
 
 @pytest.mark.parametrize("camera_only", [True, False])
 def test_a_wildcard_input_key_is_refused_the_camera_publishes_on_it(camera_only: bool) -> None:
-    wildcard = Settings(
-        input_key="cams/*/image",
-        compressed_input_key="",
-        tag_key="cams/{stream}/tag",
-        record_key="cams/{stream}/tags",
-        debug_image_key="cams/{stream}/debug",
-        detections_key="cams/{stream}/detections",
-    )
     with pytest.raises(SettingsError, match="input_key = 'cams/\\*/image'"):
-        demo.main(loopback_config(), wildcard, camera_only=camera_only, limit=1)
+        demo.main(loopback_config(), STREAMS, camera_only=camera_only, limit=1)
 
 
 def test_camera_announces_its_key_while_it_publishes(endpoint: str) -> None:

@@ -18,6 +18,7 @@ import pytest
 import zenoh
 
 from tests.helpers import (
+    STREAMS,
     Collector,
     loopback_config,
     open_session,
@@ -458,17 +459,6 @@ def test_the_tag_is_out_before_the_other_detections_are_judged(
     rig.put_raw(SCENE, seq=2)
     tag, record = rig.answer()
     assert tag.tag_id == 7 and record["seq"] == 2  # no record was put for the first frame
-
-
-STREAMS = Settings(
-    stats_interval_s=0,
-    input_key="cams/*/image",
-    compressed_input_key="",
-    tag_key="cams/{stream}/tag",
-    record_key="cams/{stream}/perception/tags",
-    debug_image_key="cams/{stream}/debug",
-    detections_key="cams/{stream}/detections",
-)
 
 
 def _matching(publisher: zenoh.Publisher) -> bool:

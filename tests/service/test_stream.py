@@ -6,19 +6,9 @@ from __future__ import annotations
 import pytest
 import zenoh
 
-from tests.helpers import open_session, wait_until
+from tests.helpers import STREAMS, open_session, wait_until
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stream import Publishers
-from zenoh_perception.settings import Settings
-
-STREAMS = Settings(
-    input_key="cams/*/image",
-    compressed_input_key="",
-    tag_key="cams/{stream}/tag",
-    record_key="cams/{stream}/perception/tags",
-    debug_image_key="cams/{stream}/debug",
-    detections_key="cams/{stream}/detections",
-)
 
 
 def test_a_key_without_stream_is_one_publisher_for_every_stream(endpoint: str) -> None:
