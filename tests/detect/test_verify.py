@@ -277,9 +277,10 @@ def test_the_cells_statistics_are_exact_up_to_an_all_white_patch(marker_size: in
         s, q = sums.ravel()[layout.corners], squares.ravel()[layout.corners]
         mean = (s[0] - s[1] - s[2] + s[3]) / layout.area
         spread = np.sqrt(np.maximum((q[0] - q[1] - q[2] + q[3]) / layout.area - mean**2, 0.0))
-        got_mean, got_spread = _cell_stats(patch, layout)
+        got_mean, got_spread, got_sums = _cell_stats(patch, layout)
         assert np.array_equal(got_mean, mean)
         assert np.array_equal(got_spread, spread)
+        assert np.array_equal(got_sums, sums.ravel())  # the seams' windows read these
 
 
 #: Hard light stripes across tags and the paper around them (sun through blinds).

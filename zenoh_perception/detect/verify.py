@@ -99,6 +99,7 @@ Mask = npt.NDArray[np.bool_]
 Floats = npt.NDArray[np.float64]
 Matrix = Sequence[Sequence[float]]  # a 3 x 3 matrix, row by row
 Bits = npt.NDArray[np.float32]
+Sums = npt.NDArray[np.float32]
 
 #: The veto reasons, in the order they are checked.
 REASONS: Final = ("resolution", "quiet_zone", "border", "grid", "strokes", "margin")
@@ -160,7 +161,7 @@ class Reading:
     cells: Floats  # mean of every cell of the own grid (ring, border, inner), row by row
     white: Mask  # which inner cells are white, row by row
     dark: float  # the border's median, grey levels
-    patch: Gray  # the warped patch the cells were read from (:class:`_Layout`)
+    sums: Sums  # the integral of the warped patch the cells were read from, flattened
 
     def levels(self) -> npt.NDArray[np.float32]:
         """The inner cells' levels, each on the scale of the cells around it
@@ -333,9 +334,10 @@ _CORNER_SIGNS: Final = (
 )
 
 
-def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
+def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats, Sums]:
     """Mean and standard deviation of every cell core of every grid, in ``layout.corners``'
-    order, from the patch's integral images."""
+    order, from the patch's integral images; and the integral of its pixels, flattened (for
+    any other window of the patch: :func:`stroke_excess`)."""
     # Every sum here is a whole number. The pixels' (at most 255 a pixel over the patch,
     # twice that while a core's four corners are added) stays below 2**24 on the layouts'
     # patches, so float32, which OpenCV fills faster, holds it exactly; the squares' needs
@@ -343,12 +345,13 @@ def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
     sums, squares = cv2.integral2(patch, sdepth=cv2.CV_32F, sqdepth=cv2.CV_64F)
     signs32, signs64 = _CORNER_SIGNS
     # each table's four corners of every core in one gather: (4, cores), then summed by sign
-    s = signs32 @ np.asarray(sums, np.float32).ravel()[layout.corners]
+    flat = np.asarray(sums, np.float32).ravel()
+    s = signs32 @ flat[layout.corners]
     q = signs64 @ np.asarray(squares, np.float64).ravel()[layout.corners]
     mean = s / layout.area  # in float64: the area's type
     variance = q / layout.area
     variance -= mean * mean
-    return mean, np.sqrt(np.maximum(variance, 0.0, out=variance), out=variance)
+    return mean, np.sqrt(np.maximum(variance, 0.0, out=variance), out=variance), flat
 
 
 def _median(values: list[float]) -> float:
@@ -498,7 +501,7 @@ def read_cells(
     quad = np.asarray(corners, np.float32)
     warp = np.asarray(cv2.getPerspectiveTransform(quad, layout.target), np.float64)
     patch = np.asarray(cv2.warpPerspective(gray, warp, (layout.side_px, layout.side_px)), np.uint8)
-    means, spreads = _cell_stats(patch, layout)
+    means, spreads, sums = _cell_stats(patch, layout)
     cells = layout.ring.shape[0]
     grid = means[: cells * cells]  # the own grid's cells, row by row
     # A few dozen values each: plain Python floats from here on, but for the inner cells'
@@ -543,7 +546,7 @@ def read_cells(
         grid,
         white,
         dark,
-        patch,
+        sums,
     )
 
 
@@ -646,8 +649,8 @@ def stroke_excess(reading: Reading) -> float:
     white[layout.inner_cells] = reading.white
     marker = np.zeros(cells * cells, bool)
     marker[layout.marker_cells] = True
-    sums = np.asarray(cv2.integral(reading.patch, sdepth=cv2.CV_64F), np.float64).ravel()
-    seam = (_CORNER_SIGNS[1] @ sums[seams.corners]) / seams.area
+    # whole numbers, exact in float32 (see _cell_stats)
+    seam = (_CORNER_SIGNS[0] @ reading.sums[seams.corners]) / seams.area
     cores = reading.cells[seams.members]
     kind = white[seams.members]
     all_white = kind.all(axis=1)
