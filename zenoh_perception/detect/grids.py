@@ -303,9 +303,19 @@ class GridKeeper:
     """
 
     def __init__(self, *, armed: bool = False) -> None:
-        self._hold = 1 if armed else 0
+        self._hold = 0  # reads left that look for grids first
         self.armed = armed
         self._mask: npt.NDArray[np.bool_] | None = None
+
+    @property
+    def armed(self) -> bool:
+        """Whether the next read looks for grids first."""
+        return self._hold > 0
+
+    @armed.setter
+    def armed(self, armed: bool) -> None:
+        """Look for grids on the next read (or not), whatever the reads before."""
+        self._hold = 1 if armed else 0
 
     def prepare(self, gray: Gray) -> Gray:
         """The frame OpenCV should read: ``gray``, or a copy with its grids painted over."""
@@ -329,4 +339,3 @@ class GridKeeper:
             self._hold = max(self._hold, 1)
         elif self._hold > 0:
             self._hold -= 1
-        self.armed = self._hold > 0
