@@ -32,7 +32,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     type_hash,
 )
 from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
-from zenoh_perception.wire.stream_keys import stream_key
+from zenoh_perception.wire.stream_keys import has_wildcard, stream_key
 
 RMW_ZENOH: str = "rmw_zenoh"
 
@@ -177,7 +177,7 @@ class RosTransport:
         """
         topic = ros_topic(role)
         subscriber = self._session.declare_subscriber(key, callback)
-        pattern = "*" in str(getattr(self._settings, topic.key_setting))
+        pattern = has_wildcard(str(getattr(self._settings, topic.key_setting)))
         token = None if pattern else self._token(topic, SUBSCRIPTION)
         declared = None if token is None else self._session.liveliness().declare_token(token)
         return _Subscription(subscriber, declared)
@@ -194,7 +194,7 @@ class RosTransport:
         for role in ("camera", "compressed_camera"):
             topic = ros_topic(role)
             setting = str(getattr(self._settings, topic.key_setting))
-            if "*" not in setting or not zenoh.KeyExpr(self.key(role)).intersects(concrete):
+            if not has_wildcard(setting) or not zenoh.KeyExpr(self.key(role)).intersects(concrete):
                 continue
             fq_topic = fully_qualified(self.node.namespace, self.topic_of(key))
             token = self._token(topic, SUBSCRIPTION, fq_topic=fq_topic)
