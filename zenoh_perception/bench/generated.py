@@ -30,7 +30,6 @@ import argparse
 import json
 import os
 import platform
-import time
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any, Final
@@ -58,7 +57,6 @@ from zenoh_perception.bench.report import format_report
 from zenoh_perception.bench.runners import DICTIONARY, Baseline, Project, board_case, compare
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.bench.throughput import THROUGHPUT_HZ, measure_throughput
-from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.tracking import tracking_counters
 from zenoh_perception.scene.boards import BOARD_KINDS, busy_board_scene
 from zenoh_perception.scene.lookalikes import FAMILIES, LOOKALIKE_KINDS
@@ -151,11 +149,7 @@ def busy_board(after: Image, *, shm: bool, frames: int) -> dict[str, Any]:
     place of every tenth frame: how many frames are answered with the board's tags, beside
     OpenCV's default time on one such frame."""
     scene = busy_board_scene()
-    gray = np.asarray(cv2.cvtColor(scene.image, cv2.COLOR_BGRA2GRAY), np.uint8)
-    detector = cv2.aruco.ArucoDetector(aruco_dictionary(DICTIONARY), cv2.aruco.DetectorParameters())
-    start = time.perf_counter()
-    detector.detectMarkers(gray)
-    opencv_ms = (time.perf_counter() - start) * 1e3
+    _, opencv_ms = Baseline(DICTIONARY).run(scene.image)
     ids = frozenset(tag_id for tag_id, _ in scene.markers)
     run = paced_images(
         "opencv", [scene.image] * frames, after, rate_hz=5.0, plain_every=10, shm=shm, ids=ids
