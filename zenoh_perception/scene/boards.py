@@ -29,6 +29,14 @@ class BoardScene:
     board: npt.NDArray[np.bool_]
 
 
+def _square(left: float, top: float, side: float) -> npt.NDArray[np.float32]:
+    """The corners of an upright square tag, OpenCV's order (top-left first, clockwise)."""
+    return np.array(
+        [[left, top], [left + side, top], [left + side, top + side], [left, top + side]],
+        np.float32,
+    )
+
+
 def board_texture(
     width: int, height: int, square: float, kind: str, seed: int = 0
 ) -> npt.NDArray[np.uint8]:
@@ -93,16 +101,7 @@ def board_scene(
     for index, tag_id in enumerate(tags):
         left = float(half + tag_side // 2 + 40 * index)
         top = float(gap * (index + 1) - tag_side // 2)
-        corners = np.array(
-            [
-                [left, top],
-                [left + tag_side, top],
-                [left + tag_side, top + tag_side],
-                [left, top + tag_side],
-            ],
-            np.float32,
-        )
-        markers.append((tag_id, corners))
+        markers.append((tag_id, _square(left, top, tag_side)))
     image = render_markers(width, height, markers, dictionary=dictionary, background=background)
     return BoardScene(image, tuple(markers), board)
 
@@ -129,10 +128,6 @@ def busy_board_scene(
     markers = []
     for index, tag_id in enumerate(tags):
         left, top = float(edge + 20), float(gap * index + (gap - side) // 2)
-        corners = np.array(
-            [[left, top], [left + side, top], [left + side, top + side], [left, top + side]],
-            np.float32,
-        )
-        markers.append((tag_id, corners))
+        markers.append((tag_id, _square(left, top, side)))
     image = render_markers(width, height, markers, dictionary=dictionary, background=background)
     return BoardScene(image, tuple(markers), board)
