@@ -338,7 +338,7 @@ class PerceptionService:
 
     def streams(self) -> list[str]:
         """The keys of the streams served now (the key each one's last frame came on)."""
-        return self._streams.keys()
+        return [stream.key for stream in self._streams.by_key()]
 
     def _role_of(self, key: str) -> str:
         """The input whose samples ``key`` carries (SettingsError: none, or not concrete)."""

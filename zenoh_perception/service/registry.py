@@ -93,11 +93,6 @@ class StreamRegistry:
         with self._lock:
             return sorted(self._streams.values(), key=lambda s: s.key)
 
-    def keys(self) -> list[str]:
-        """The keys of the streams served now (the key each one's last frame came on)."""
-        with self._lock:
-            return sorted(s.key for s in self._streams.values())
-
     def guarded(self) -> list[Stream]:
         """The streams whose detection a deadline guards (the watchdog's)."""
         with self._lock:
