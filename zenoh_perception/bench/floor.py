@@ -34,23 +34,22 @@ from zenoh_perception.wire.records import TagCodec
 _TIMING = dict.fromkeys(("latency_ms", "queue_ms", "decode_ms", "convert_ms", "detect_ms"), 0.0)
 
 
-def _seq(sample: zenoh.Sample) -> int:
+def _meta(sample: zenoh.Sample) -> dict[str, Any]:
+    """The frame's msgpack attachment ({} when there is none)."""
     attachment = sample.attachment
     if attachment is None:
-        return -1
+        return {}
     meta: Any = msgpack.unpackb(attachment.to_bytes(), raw=False)
-    return int(meta.get("seq", -1)) if isinstance(meta, dict) else -1
+    return meta if isinstance(meta, dict) else {}
 
 
-def _opencv(dictionary: str) -> Callable[[bytes, zenoh.Sample], None]:
-    """OpenCV's default detector on a raw BGRA frame (its size from the attachment)."""
+def _opencv(dictionary: str) -> Callable[[bytes, dict[str, Any]], None]:
+    """OpenCV's default detector on a raw BGRA frame (its size from the attachment ``meta``)."""
     detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionary), cv2.aruco.DetectorParameters())
 
-    def detect(pixels: bytes, sample: zenoh.Sample) -> None:
-        attachment = sample.attachment
-        if attachment is None:
+    def detect(pixels: bytes, meta: dict[str, Any]) -> None:
+        if "width" not in meta:
             return
-        meta: Any = msgpack.unpackb(attachment.to_bytes(), raw=False)
         image = np.frombuffer(pixels, np.uint8).reshape(int(meta["height"]), int(meta["width"]), 4)
         detector.detectMarkers(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY))
 
@@ -78,9 +77,10 @@ def main(argv: list[str] | None = None) -> int:
 
         def answer(sample: zenoh.Sample) -> None:
             pixels = sample.payload.to_bytes()  # the one copy out of Zenoh the service makes too
+            meta = _meta(sample)
             if detect is not None:
-                detect(pixels, sample)
-            record = {"seq": _seq(sample), "tags": [], "timing": _TIMING}
+                detect(pixels, meta)
+            record = {"seq": int(meta.get("seq", -1)), "tags": [], "timing": _TIMING}
             tags.put(tag)
             records.put(msgpack.packb(record))
 
