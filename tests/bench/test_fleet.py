@@ -13,9 +13,11 @@ from zenoh_perception.bench.fleet import (
     CONFIGS,
     HANDOVER_S,
     Answer,
+    Limit,
     _configs,
     _window,
     bytes_received,
+    ceiling,
     cpu_seconds,
 )
 
@@ -71,3 +73,13 @@ def test_cpu_seconds_counts_this_process_threads_and_0_for_a_process_gone() -> N
         sum(range(10_000))
     gone = 2**22 + 1  # above the largest pid Linux gives by default
     assert cpu_seconds([gone]) == {gone: 0.0}
+
+
+def test_the_ceiling_is_opencv_on_the_cores_the_other_processes_left() -> None:
+    limit = Limit(fps=400.0, per_cpu_s=250.0)
+    share = {"cameras": 0.4, "routers": 0.1, "instances": 1.4, "bench": 0.1}
+    # 2 cores less 0.6 taken by the others: 1.4 cores at 250 frames per CPU-second
+    assert ceiling(limit, share, 2) == 350.0
+    # with cores to spare, never more than OpenCV's loop alone on every core
+    assert ceiling(limit, share, 8) == 400.0
+    assert ceiling(limit, {"cameras": 3.0, "instances": 0.5}, 2) == 0.0

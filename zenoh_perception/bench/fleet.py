@@ -529,6 +529,15 @@ def _latency(answers: list[Answer]) -> dict[str, tuple[float, float]]:
     }
 
 
+def ceiling(limit: Limit, cpu_share: dict[str, float], cores: int) -> float:
+    """The most frames a second the instances could answer on this machine: bare OpenCV's
+    frames per CPU-second on the cores every other process of the run (cameras, routers, the
+    bench) left them, and never more than the limit itself (OpenCV's loop alone on every
+    core)."""
+    others = sum(v for k, v in cpu_share.items() if k != "instances")
+    return min(limit.fps, limit.per_cpu_s * max(cores - others, 0.0))
+
+
 def format_result(r: Result, limit: Limit) -> list[str]:
     s = r.steady
     lines = [
@@ -561,6 +570,12 @@ def format_result(r: Result, limit: Limit) -> list[str]:
         + ", ".join(f"{k} {v:.2f}" for k, v in r.cpu_share.items())
         + f"; the instances answered {r.per_cpu_s:.1f} frames per CPU-second, bare OpenCV "
         f"reads {limit.per_cpu_s:.1f}: {r.per_cpu_s / limit.per_cpu_s:.2f}x"
+    )
+    top = ceiling(limit, r.cpu_share, os.cpu_count() or 1)
+    lines.append(
+        f"  ceiling: bare OpenCV's frames per CPU-second on the cores the cameras, routers and "
+        f"bench left: {top:.1f} frames/s ({top / limit.fps:.2f}x the limit); the instances "
+        f"answered {r.capacity_fps / max(top, 1e-9):.2f}x of it"
     )
     if medians:
         lines.append(
