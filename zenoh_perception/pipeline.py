@@ -190,6 +190,7 @@ def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
         settings.dictionary,
         full_scan_period=settings.full_scan_period,
         wary=wary,
+        second_look=settings.second_look,
     )
 
 

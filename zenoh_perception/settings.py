@@ -158,6 +158,13 @@ class Settings:
         default=4,
         metadata=_doc("tracking: whole-frame scan at least every N frames (new tags within N)"),
     )
+    second_look: bool = field(
+        default=True,
+        metadata=_doc(
+            "read frames up to 1000 px a side again at 2x where only small tags (or none) were "
+            "found, for tags too small for OpenCV's default read"
+        ),
+    )
     opencv_threads: int = field(
         default=0, metadata=_doc("OpenCV worker threads; 0 = OpenCV's default")
     )

@@ -95,7 +95,10 @@ def pair(dictionary: str, settings: Settings) -> dict[str, Runner]:
     """:data:`PAIR`: OpenCV's default the way a user runs it, and the service's detector with
     ``settings`` as the service runs it."""
     detector = make_detector(
-        settings.detector, dictionary, full_scan_period=settings.full_scan_period
+        settings.detector,
+        dictionary,
+        full_scan_period=settings.full_scan_period,
+        second_look=settings.second_look,
     )
     return {
         "opencv": Baseline(dictionary),

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.grids import GridKeeper
-from zenoh_perception.detect.types import Detection, dictionary_name, dictionary_names
+from zenoh_perception.detect.types import Detection, Looker, dictionary_name, dictionary_names
 
 
 def aruco_dictionary(name: str) -> Any:
@@ -76,7 +76,13 @@ class OpenCvDetector:
     are matched against every dictionary) and each detection names its dictionary.
     """
 
-    def __init__(self, dictionary: str = "DICT_4X4_50", *, wary: bool = False) -> None:
+    def __init__(
+        self,
+        dictionary: str = "DICT_4X4_50",
+        *,
+        wary: bool = False,
+        second_look: Looker | None = None,
+    ) -> None:
         params = cv2.aruco.DetectorParameters()
         self._params = params
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
@@ -88,6 +94,9 @@ class OpenCvDetector:
         #: once a read proved expensive (see detect/grids.py); from the first read when
         #: ``wary`` (a detector replacing one whose read stalled)
         self.grids = GridKeeper(armed=wary)
+        #: a second read of small frames for markers too small for the default read (see
+        #: detect/second_look.py); None: OpenCV's default read alone
+        self.second_look = second_look
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
         if len(self.dictionaries) == 1:
@@ -96,16 +105,24 @@ class OpenCvDetector:
         corners, ids, _rejected, indices = self._detector.detectMarkersMultiDict(image)
         return detections_from_opencv(corners, ids, offset, self.dictionaries, indices)
 
-    def detect(self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0) -> list[Detection]:
+    def detect(
+        self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0, *, frame: bool = True
+    ) -> list[Detection]:
         """Markers in the whole image; with ``min_perimeter_px``, none whose perimeter is
-        shorter than that many pixels (never smaller than the configured rate allows)."""
+        shorter than that many pixels (never smaller than the configured rate allows).
+        ``frame``: the image is a stream's frame (not a reduced copy of one), which the
+        second look, when there is one, may read again."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
         image = self.grids.prepare(gray)
         # OpenCV's read alone: the finder's own time must not keep it armed
         start = perf_counter()
         found = self._detect(image, (0, 0))
         self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
-        return [d for d in found if self.grids.keep(d.corners)]
+        found = [d for d in found if self.grids.keep(d.corners)]
+        look = self.second_look
+        if frame and look is not None and look.wanted(gray.shape, found):
+            found = look.look(image, found, self.grids.keep)
+        return found
 
     def detect_region(
         self,

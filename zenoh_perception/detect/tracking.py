@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
 from zenoh_perception.detect.regions import Rect, around, inside, perimeter, same_marker, side
+from zenoh_perception.detect.second_look import SecondLook
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
 
@@ -136,9 +137,11 @@ class TrackingDetector:
         config: TrackingConfig | None = None,
         *,
         wary: bool = False,
+        second_look: SecondLook | None = None,
     ) -> None:
         self.config = config if config is not None else TrackingConfig()
-        self._opencv = OpenCvDetector(dictionary, wary=wary)
+        # its whole-frame scans get the second look (frames in between are regions)
+        self._opencv = OpenCvDetector(dictionary, wary=wary, second_look=second_look)
         self._tracks: list[_Track] = []
         self._thumb: Change | None = None
         self._since_scan = 0
@@ -235,7 +238,7 @@ class TrackingDetector:
             size = (max(1, width // factor), max(1, height // factor))
             small = np.asarray(cv2.resize(small, size, interpolation=cv2.INTER_AREA), np.uint8)
         smallest = 4.0 * GLIMPSE_MIN_SIDE_PX / GLIMPSE
-        for found in self._opencv.detect(small, min_perimeter_px=smallest):
+        for found in self._opencv.detect(small, min_perimeter_px=smallest, frame=False):
             centre = _centre(found.corners) * GLIMPSE + (GLIMPSE - 1) / 2
             if not any(
                 track.tag_id == found.tag_id

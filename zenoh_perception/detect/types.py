@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Final, Protocol
 
@@ -92,4 +93,22 @@ class Detector(Protocol):
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
         """Return every marker found in ``gray``."""
+        ...
+
+
+class Looker(Protocol):
+    """A second read of a whole frame after the detector's (see
+    :class:`~zenoh_perception.detect.second_look.SecondLook`)."""
+
+    def wanted(self, shape: tuple[int, ...], found: Sequence[Detection]) -> bool:
+        """Whether the frame of ``shape`` whose first read found ``found`` is read again."""
+        ...
+
+    def look(
+        self,
+        image: npt.NDArray[np.uint8],
+        found: list[Detection],
+        keep: Callable[[npt.NDArray[np.float32]], bool],
+    ) -> list[Detection]:
+        """``found`` and what the second read adds to it (markers ``keep`` accepts)."""
         ...

@@ -1,0 +1,131 @@
+"""The second look: small markers OpenCV's default read misses, and where it is not taken."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.second_look import MAX_SIDE_PX, PERIOD, SecondLook
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.pipeline import Pipeline
+from zenoh_perception.scene.lookalikes import lookalike_frame
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import ENCODINGS, Frame
+
+Gray = npt.NDArray[np.uint8]
+DICTIONARY = "DICT_4X4_50"
+
+
+def _marker(tag_id: int, side_px: int) -> Gray:
+    """A printed marker with a quiet zone of two cells, its black square ``side_px`` wide."""
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    printed = cv2.copyMakeBorder(
+        cv2.aruco.generateImageMarker(dictionary, tag_id, 60),
+        *(20,) * 4,
+        cv2.BORDER_CONSTANT,
+        value=255,
+    )
+    total = round(side_px * 100 / 60)
+    return np.asarray(cv2.resize(printed, (total, total), interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def _frame(*markers: tuple[int, int, int, int], shape: tuple[int, int] = (480, 640)) -> Gray:
+    """A grey frame with markers (id, side px, x, y of the print's top-left)."""
+    noise = np.random.default_rng(0).normal(0.0, 3.0, shape)
+    frame = np.clip(120.0 + noise, 0, 255).astype(np.uint8)
+    for tag_id, side_px, x, y in markers:
+        print_ = _marker(tag_id, side_px)
+        frame[y : y + print_.shape[0], x : x + print_.shape[1]] = print_
+    return frame
+
+
+# A 10 px marker: OpenCV's default read finds nothing, the 2x read with one window finds it.
+SMALL = (7, 10, 300, 200)
+
+
+def _ids(found: list[Detection]) -> list[int]:
+    return sorted(d.tag_id for d in found)
+
+
+def test_the_look_finds_a_marker_too_small_for_the_default_read() -> None:
+    frame = _frame(SMALL)
+    assert OpenCvDetector(DICTIONARY).detect(frame) == []
+    found = OpenCvDetector(DICTIONARY, second_look=SecondLook((DICTIONARY,))).detect(frame)
+    assert _ids(found) == [7]
+    # in the frame's pixels: the centre of the print (17 px wide, the marker in its middle)
+    centre = found[0].corners.mean(axis=0)
+    assert np.allclose(centre, (300 + 8, 200 + 8), atol=1.0)
+
+
+def test_a_frame_with_a_large_marker_is_not_looked_at_so_its_tag_never_waits() -> None:
+    look = SecondLook((DICTIONARY,))
+    frame = _frame(SMALL, (3, 60, 40, 40))
+    found = OpenCvDetector(DICTIONARY, second_look=look).detect(frame)
+    assert _ids(found) == [3]  # the small one too would need the look
+    assert look.counters["looks"] == 0
+
+
+def test_large_frames_are_not_looked_at() -> None:
+    look = SecondLook((DICTIONARY,))
+    assert not look.wanted((MAX_SIDE_PX + 1, 640), [])
+    assert look.wanted((MAX_SIDE_PX, 640), [])
+
+
+def test_looks_on_the_first_frame_every_period_and_when_fewer_or_none_are_found() -> None:
+    look = SecondLook((DICTIONARY,))
+    small = Detection(1, np.asarray([[0, 0], [10, 0], [10, 10], [0, 10]], np.float32))
+    shape = (480, 640)
+    looked = [look.wanted(shape, [small]) for _ in range(PERIOD + 1)]
+    assert looked == [True] + [False] * (PERIOD - 1) + [True]
+    assert look.wanted(shape, [])  # none found
+    assert not look.wanted(shape, [small])  # one again, more than before
+    assert look.wanted(shape, [])
+
+
+def test_the_look_adds_nothing_the_default_read_found() -> None:
+    frame = _frame((7, 24, 300, 200))
+    look = SecondLook((DICTIONARY,))
+    found = OpenCvDetector(DICTIONARY).detect(frame)
+    assert _ids(found) == [7]
+    assert look.look(frame, found) == found
+    assert look.counters == {"looks": 1, "added": 0}
+
+
+def test_the_detectors_take_it_by_default_and_leave_it_when_told() -> None:
+    frame = _frame(SMALL)
+    for name in ("opencv", "tracking"):
+        assert _ids(make_detector(name, DICTIONARY).detect(frame)) == [7]
+        assert make_detector(name, DICTIONARY, second_look=False).detect(frame) == []
+
+
+def _bgra(gray: Gray) -> Frame:
+    bgra = np.asarray(cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA), np.uint8)
+    return Frame(bgra, ENCODINGS["bgra8"], None, "t", None)
+
+
+def test_the_service_reports_a_small_tag_the_default_read_misses() -> None:
+    frame = _bgra(_frame(SMALL))
+    assert Pipeline(Settings()).process(frame).selected.tag_id == 7
+    assert Pipeline(Settings(second_look=False)).process(frame).selected.tag_id == -1
+
+
+def test_the_veto_judges_what_the_look_adds() -> None:
+    """Frames of key-caps, lettering and floor tiles: the look reads ids on them that the
+    default read does not, and the veto removes every one."""
+    rng = np.random.default_rng(5)
+    added = 0
+    for kind in ("keys", "text", "tiles"):
+        for _ in range(6):
+            frame = lookalike_frame(kind, DICTIONARY, rng)
+            gray = np.asarray(cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY), np.uint8)
+            default = OpenCvDetector(DICTIONARY).detect(gray)
+            look = SecondLook((DICTIONARY,))
+            added += len(look.look(gray, list(default))) - len(default)
+            tagged = Frame(frame, ENCODINGS["bgra8"], None, "t", None)
+            with_look = Pipeline(Settings()).process(tagged).tags
+            without = Pipeline(Settings(second_look=False)).process(tagged).tags
+            assert [t.tag_id for t in with_look] == [t.tag_id for t in without]
+    assert added > 0  # the look did add look-alikes here

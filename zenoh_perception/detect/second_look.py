@@ -1,0 +1,105 @@
+"""A second look at a whole frame for markers too small for OpenCV's default read.
+
+OpenCV's default parameters threshold the frame with windows of 3, 13 and 23 pixels; a marker
+of 8-24 px often has too few pixels per cell for any of them to separate its cells. Read at
+twice its size with the one window of :data:`WINDOW_PX`, the same frame gives OpenCV enough
+pixels: it finds markers there that its default read misses, with OpenCV still deciding
+every id (the caller's veto judges each one as it judges every other).
+
+The look costs about four default reads of the frame, so it is taken only where it can pay:
+
+- on frames up to :data:`MAX_SIDE_PX` a side (an HD720 frame read at 2x would cost several
+  times a frame's budget);
+- only when every marker the default read found is small (mean side up to
+  :data:`SMALL_SIDE_PX`): the look keeps only markers that small, so when a larger one is in
+  the frame it could never find the closest, and the frame's tag does not wait for it;
+- on the stream's first frame and every :data:`PERIOD` frames after, when the default read
+  found nothing, or fewer markers than on the frame before (one may have shrunk from view).
+
+What it finds is merged where no marker of the same id is at that place. Pure: no Zenoh, no
+logging.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Final
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
+from zenoh_perception.detect.regions import same_marker
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.tags.geometry import mean_side
+
+#: Frames with a larger side are not looked at again.
+MAX_SIDE_PX: Final = 1000
+#: How much larger the frame is read.
+SCALE: Final = 2
+#: The one adaptive-threshold window of the look, pixels of the enlarged frame.
+WINDOW_PX: Final = 13
+#: The largest marker (mean side, frame pixels) the look keeps; a frame where the default read
+#: found a larger one is not looked at.
+SMALL_SIDE_PX: Final = 32.0
+#: Every how many frames the look is taken when nothing changed.
+PERIOD: Final = 8
+
+
+class SecondLook:
+    """The look of one stream (see the module documentation): :meth:`wanted` says whether a
+    frame gets it, :meth:`look` takes it. ``counters`` count frames looked at and markers
+    added."""
+
+    def __init__(self, dictionaries: Sequence[str]) -> None:
+        params = cv2.aruco.DetectorParameters()
+        params.adaptiveThreshWinSizeMin = WINDOW_PX
+        params.adaptiveThreshWinSizeMax = WINDOW_PX
+        self._dictionaries = tuple(dictionaries)
+        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(self._dictionaries[0]), params)
+        if len(self._dictionaries) > 1:
+            self._detector.setDictionaries([aruco_dictionary(d) for d in self._dictionaries])
+        self._frames = 0
+        self._previous = 0
+        self.counters: dict[str, int] = {"looks": 0, "added": 0}
+
+    def wanted(self, shape: tuple[int, ...], found: Sequence[Detection]) -> bool:
+        """Whether the frame of ``shape`` whose default read found ``found`` gets the look;
+        counts the frame."""
+        index, previous = self._frames, self._previous
+        self._frames, self._previous = index + 1, len(found)
+        if max(shape[:2]) > MAX_SIDE_PX:
+            return False
+        if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
+            return False
+        return index % PERIOD == 0 or not found or len(found) < previous
+
+    def look(
+        self,
+        image: npt.NDArray[np.uint8],
+        found: list[Detection],
+        keep: Callable[[npt.NDArray[np.float32]], bool] = lambda _: True,
+    ) -> list[Detection]:
+        """``found`` and the small markers the enlarged ``image`` shows that no marker of
+        ``found`` is (same id, same place) and ``keep`` accepts (by their corners)."""
+        self.counters["looks"] += 1
+        height, width = image.shape[:2]
+        big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
+        if len(self._dictionaries) == 1:
+            corners, ids, _rejected = self._detector.detectMarkers(big)
+            more = detections_from_opencv(corners, ids, (0, 0), self._dictionaries)
+        else:
+            corners, ids, _rejected, indices = self._detector.detectMarkersMultiDict(big)
+            more = detections_from_opencv(corners, ids, (0, 0), self._dictionaries, indices)
+        merged = list(found)
+        for detection in more:
+            # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
+            quad = (detection.corners + np.float32(0.5)) / np.float32(SCALE) - np.float32(0.5)
+            small = Detection(detection.tag_id, quad, detection.dictionary)
+            if mean_side(quad) > SMALL_SIDE_PX or not keep(quad):
+                continue
+            if not any(same_marker(small, other) for other in merged):
+                merged.append(small)
+                self.counters["added"] += 1
+        return merged
