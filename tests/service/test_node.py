@@ -89,8 +89,9 @@ def _rig(settings: Settings, endpoint: str) -> Iterator[Rig]:
             tags = Collector(camera, settings.tag_key)
             records = Collector(camera, settings.record_key)
             # BLOCK: Zenoh never drops a large frame when the machine is busy
+            (input_key,) = settings.entries("input_key")
             publisher = camera.declare_publisher(
-                settings.input_key, congestion_control=zenoh.CongestionControl.BLOCK
+                input_key, congestion_control=zenoh.CongestionControl.BLOCK
             )
             wait_for_subscriber(publisher)
             yield Rig(service, camera, publisher, tags, records)
