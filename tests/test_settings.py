@@ -451,3 +451,133 @@ def test_share_group_names_that_are_accepted() -> None:
 def test_share_group_needs_the_bridge_transport() -> None:
     with pytest.raises(SettingsError, match="share_group"):
         settings_from_mapping({"share_group": "rover", "ros_transport": "rmw_zenoh"})
+
+
+# -- several cameras as a list of keys ---------------------------------------------------------
+
+#: Output keys of a stream each, beside a list of cameras (ROS topic names too).
+LIST_OUTPUTS = {
+    "tag_key": "{stream}/tag",
+    "record_key": "{stream}/perception/tags",
+    "debug_image_key": "{stream}/perception/debug/image/compressed",
+    "detections_key": "{stream}/perception/detections",
+}
+
+
+def test_a_list_of_cameras_from_the_file_and_from_repeated_flags(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    lines = [f'{k} = "{v}"' for k, v in LIST_OUTPUTS.items()]
+    path.write_text(
+        "\n".join(
+            [
+                *lines,
+                'input_key = ["front/image", "rear/image"]',
+                'compressed_input_key = ["front/image/compressed", "rear/image/compressed"]',
+                'camera_info_key = ["front/camera_info", "rear/camera_info"]',
+            ]
+        )
+        + "\n"
+    )
+    from_file = load_settings(path)
+    assert from_file.input_key == ("front/image", "rear/image")
+    assert from_file.entries("camera_info_key") == ("front/camera_info", "rear/camera_info")
+    assert from_file.several
+    assert from_file.as_dict()["input_key"] == ("front/image", "rear/image")
+    # each flag given again adds a key; given, the flags replace the file's list
+    args = _parse(
+        "--settings",
+        str(path),
+        "--input-key",
+        "front/image",
+        "--input-key",
+        "side/image",
+        "--input-key",
+        "rear/image",
+        "--compressed-input-key",
+        "",
+    )
+    from_flags = settings_from_args(args)
+    assert from_flags.input_key == ("front/image", "side/image", "rear/image")
+    assert from_flags.compressed_input_key == ""
+
+
+def test_a_list_of_one_key_is_that_key() -> None:
+    args = _parse("--input-key", "cams/front/image")
+    settings = settings_from_args(args)
+    assert settings.input_key == "cams/front/image"
+    assert not settings.several
+    assert settings_from_mapping({"input_key": ["zed/left/image"]}) == Settings()
+    assert Settings(input_key=("zed/left/image",)) == Settings()
+
+
+@pytest.mark.parametrize(
+    ("values", "named"),
+    [
+        ({"input_key": []}, "input_key"),
+        ({"input_key": ["a/image", ""]}, "input_key"),
+        ({"input_key": ["a/image", 3]}, "input_key"),
+        ({"input_key": "a/image", "camera_info_key": ["a/info", "b/info"]}, "camera_info_key"),
+        # the same camera twice, or a key two entries both match
+        ({"input_key": ["a/image", "a/image"]}, "input_key"),
+        ({"input_key": ["cams/*/image", "cams/front/image"]}, "input_key"),
+        ({"input_key": ["cams/**", "cams/front/image/x"]}, "input_key"),
+        # an entry that is all chunks the others share names no stream
+        ({"input_key": ["cams/image", "cams/image/left"]}, "input_key"),
+        ({"input_key": ["a/image", "b/image"], "compressed_input_key": "zed"}, "compressed_input"),
+        ({"input_key": ["a/image", "perception/tags"]}, "record_key"),
+        ({"input_key": ["a/image", "b/image"], "compressed_input_key": ["b/**"]}, "input_key"),
+        ({"input_key": ["a/image", "b/im\x01age"]}, "input_key"),
+        ({"input_key": ["a/image", "{stream}/image"]}, "input_key"),
+        ({"input_key": ["a/image", "b//image"]}, "input_key"),
+    ],
+)
+def test_a_bad_list_of_cameras_is_refused_naming_the_setting(
+    values: dict[str, object], named: str
+) -> None:
+    with pytest.raises(SettingsError, match=named) as raised:
+        settings_from_mapping({**LIST_OUTPUTS, "compressed_input_key": "", **values})
+    assert "\n" not in str(raised.value)
+
+
+@pytest.mark.parametrize("output", ["tag_key", "record_key", "debug_image_key", "detections_key"])
+def test_a_list_of_cameras_needs_stream_outputs(output: str) -> None:
+    values = {**LIST_OUTPUTS, output: "shared/key", "compressed_input_key": ""}
+    with pytest.raises(SettingsError, match=rf"{output} = .*must hold '{{stream}}'.*input_key"):
+        settings_from_mapping({**values, "input_key": ["a/image", "b/image"]})
+
+
+def test_a_list_of_cameras_beside_patterns_and_on_a_ros_graph() -> None:
+    mixed = settings_from_mapping(
+        {
+            **LIST_OUTPUTS,
+            "input_key": ["front/image", "rear/image"],
+            "compressed_input_key": "*/image/compressed",
+            "camera_info_key": "*/camera_info",
+        }
+    )
+    assert mixed.several and mixed.tf_key == "tf"
+    ros = settings_from_mapping(
+        {
+            **LIST_OUTPUTS,
+            "ros_transport": "rmw_zenoh",
+            "input_key": ["front/image", "rear/image"],
+            "compressed_input_key": "",
+        }
+    )
+    assert ros.entries("input_key") == ("front/image", "rear/image")
+    with pytest.raises(SettingsError, match="input_key = 'rear/im-age'"):
+        settings_from_mapping(
+            {
+                **LIST_OUTPUTS,
+                "ros_transport": "rmw_zenoh",
+                "input_key": ["front/image", "rear/im-age"],
+                "compressed_input_key": "",
+            }
+        )
+
+
+def test_a_list_of_more_cameras_than_max_streams_is_refused() -> None:
+    values = {**LIST_OUTPUTS, "compressed_input_key": "", "input_key": ["a/i", "b/i", "c/i"]}
+    assert settings_from_mapping({**values, "max_streams": 3}).several
+    with pytest.raises(SettingsError, match="input_key lists 3 keys, more than max_streams = 2"):
+        settings_from_mapping({**values, "max_streams": 2})

@@ -10,6 +10,9 @@ Validation (every failure is a :class:`SettingsError` naming the setting; the CL
 - keys are Zenoh key expressions as written (no auto-canonisation); the inputs
   (``input_key``, ``camera_info_key``) may hold wildcards, every key the service publishes,
   serves or declares on must be concrete, and no output may intersect an input;
+- an input may be a list of keys (a TOML array, or its flag given once per key): no key
+  matched by two entries, each entry a stream name of its own, no more than ``max_streams``;
+  with several streams (a wildcard or a list) the outputs hold ``{stream}``;
 - ``ros_package`` is a valid ROS package name; ``ros_node_name`` and ``ros_namespace`` are
   valid ROS names, and with ``ros_transport = "rmw_zenoh"`` every key of a ROS topic is a
   relative ROS topic name;
@@ -51,7 +54,14 @@ from zenoh_perception.wire.rmw_zenoh import (
     is_relative_topic,
 )
 from zenoh_perception.wire.ros_topics import ROS_TOPICS, Direction
-from zenoh_perception.wire.stream_keys import STREAM, has_wildcard, stream_key
+from zenoh_perception.wire.stream_keys import (
+    STREAM,
+    Keys,
+    StreamNames,
+    has_wildcard,
+    key_entries,
+    stream_key,
+)
 
 METRICS = tuple(Metric)
 #: When detection runs in a child process (with a frame deadline): ``on_stall``, in the
@@ -90,13 +100,19 @@ class Settings:
     """Everything the perception service can be told (see ``config/perception.toml``)."""
 
     # Zenoh keys
-    input_key: str = field(
+    input_key: Keys = field(
         default="zed/left/image",
-        metadata=_doc("key of raw / sensor_msgs/Image CDR frames; '' = off (compressed only)"),
+        metadata=_doc(
+            "key of raw / sensor_msgs/Image CDR frames (a flag per key for several cameras); "
+            "'' = off (compressed only)"
+        ),
     )
-    compressed_input_key: str = field(
+    compressed_input_key: Keys = field(
         default="zed/left/image/compressed",
-        metadata=_doc("key of sensor_msgs/CompressedImage CDR frames (JPEG, PNG); '' = off"),
+        metadata=_doc(
+            "key of sensor_msgs/CompressedImage CDR frames (JPEG, PNG; a flag per key for "
+            "several cameras); '' = off"
+        ),
     )
     tag_key: str = field(default="tag", metadata=_doc("key of the StarterProjectTag CDR output"))
     record_key: str = field(
@@ -120,8 +136,12 @@ class Settings:
     liveliness_key: str = field(
         default="perception/alive", metadata=_doc("prefix of the service's liveliness token")
     )
-    camera_info_key: str = field(
-        default="", metadata=_doc("key of sensor_msgs/CameraInfo CDR giving intrinsics; '' = off")
+    camera_info_key: Keys = field(
+        default="",
+        metadata=_doc(
+            "key of sensor_msgs/CameraInfo CDR giving intrinsics (a flag per key for several "
+            "cameras); '' = off"
+        ),
     )
     share_group: str = field(
         default="",
@@ -249,6 +269,8 @@ class Settings:
     )
 
     def __post_init__(self) -> None:
+        for name in KEY_LISTS:  # a list as a tuple; a list of one entry is that entry
+            object.__setattr__(self, name, _key_list(name, getattr(self, name)))
         _validate(self)
         # the dictionaries as OpenCV spells them, whatever case they were given in
         object.__setattr__(self, "dictionary", ", ".join(dictionary_names(self.dictionary)))
@@ -259,6 +281,15 @@ class Settings:
             if known_id == tag_id:
                 return size
         return self.tag_size_m
+
+    def entries(self, name: str) -> tuple[str, ...]:
+        """The entries of input setting ``name`` (one of :data:`KEY_LISTS`); ``()`` when off."""
+        return key_entries(getattr(self, name))
+
+    @property
+    def several(self) -> bool:
+        """Whether the service may serve several streams: an input is a pattern or a list."""
+        return any(StreamNames(getattr(self, n)).several for n in _FRAME_INPUTS)
 
     @property
     def has_intrinsics(self) -> bool:
@@ -350,8 +381,12 @@ def check_ros_package(name: str) -> str:
     return name
 
 
-#: Keys the service subscribes to: key expressions (wildcards allowed).
-_INPUT_KEYS: Final = ("input_key", "compressed_input_key", "camera_info_key")
+#: Keys the service subscribes to: key expressions (wildcards allowed), each setting one key
+#: or a list of them.
+KEY_LISTS: Final = ("input_key", "compressed_input_key", "camera_info_key")
+_INPUT_KEYS: Final = KEY_LISTS
+#: The inputs of frames (each stream's).
+_FRAME_INPUTS: Final = ("input_key", "compressed_input_key")
 #: Keys the service publishes on or serves: concrete, never intersecting an input.
 _OUTPUT_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "status_key")
 #: Outputs that "" turns off; when set, held to the same rules as the others.
@@ -360,6 +395,27 @@ _OPTIONAL_OUTPUT_KEYS: Final = ("detections_key", "tf_key")
 _STREAM_KEYS: Final = ("tag_key", "record_key", "debug_image_key", "detections_key", "tf_key")
 #: Characters a ROS frame id may hold (tf2 refuses others; a leading '/' is deprecated).
 _FRAME_PREFIX: Final = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_/.-]*")
+
+
+def _key_list(name: str, value: object) -> Keys:
+    """An input setting as kept: a string, or a tuple of two strings or more."""
+    if isinstance(value, str):
+        return value
+    if not isinstance(value, tuple | list) or not all(isinstance(v, str) for v in value):
+        msg = f"setting {name} must be a key or a list of keys, not {value!r}"
+        raise SettingsError(msg)
+    entries = tuple(str(v) for v in value)
+    if len(entries) == 1:  # a list of one key is that key ('' = off, as a flag given once)
+        return entries[0]
+    if not all(entries):
+        msg = f"{name} = {list(entries)!r}: a list holds one key or more, none empty ('' = off)"
+        raise SettingsError(msg)
+    return entries
+
+
+def _shown(value: Keys) -> str:
+    """An input setting as written in a message: one key, or the list."""
+    return repr(value) if isinstance(value, str) else repr(list(value))
 
 
 def _key_expr(name: str, value: str) -> zenoh.KeyExpr:
@@ -415,14 +471,17 @@ def _validate_keys(settings: Settings) -> None:
         msg = "input_key and compressed_input_key are both empty: the service needs an input"
         raise SettingsError(msg)
     for name in _INPUT_KEYS:
-        if STREAM in getattr(settings, name):
-            msg = f"{name} = {getattr(settings, name)!r}: an input holds no {STREAM!r}"
+        if any(STREAM in entry for entry in settings.entries(name)):
+            msg = f"{name} = {_shown(getattr(settings, name))}: an input holds no {STREAM!r}"
             raise SettingsError(msg)
-    inputs = {
-        name: _key_expr(name, getattr(settings, name))
+    # each entry of each input: (setting, entry, key expression)
+    inputs = [
+        (name, entry, _key_expr(name, entry))
         for name in _INPUT_KEYS
-        if getattr(settings, name)
-    }
+        for entry in settings.entries(name)
+    ]
+    for name in _INPUT_KEYS:
+        _validate_key_list(name, settings.entries(name))
     outputs: dict[str, zenoh.KeyExpr] = {}
     optional = tuple(name for name in _OPTIONAL_OUTPUT_KEYS if getattr(settings, name))
     for name in (*_OUTPUT_KEYS, *optional, "liveliness_key"):
@@ -437,20 +496,19 @@ def _validate_keys(settings: Settings) -> None:
             raise SettingsError(msg)
         outputs[name] = _key_expr(name, _any_stream(value))
     for out_name in (*_OUTPUT_KEYS, *optional):
-        for in_name, in_key in inputs.items():
+        for in_name, entry, in_key in inputs:
             if outputs[out_name].intersects(in_key):
                 msg = (
                     f"{out_name} = {getattr(settings, out_name)!r} intersects {in_name} = "
-                    f"{getattr(settings, in_name)!r}: the service would receive what it sends"
+                    f"{entry!r}: the service would receive what it sends"
                 )
                 raise SettingsError(msg)
-    names = list(inputs)
-    for i, first in enumerate(names):
-        for second in names[i + 1 :]:
-            if inputs[first].intersects(inputs[second]):
+    for i, (first, first_entry, first_key) in enumerate(inputs):
+        for second, second_entry, second_key in inputs[i + 1 :]:
+            if first != second and first_key.intersects(second_key):
                 msg = (
-                    f"{second} = {getattr(settings, second)!r} intersects {first} = "
-                    f"{getattr(settings, first)!r}: the two inputs would be mixed"
+                    f"{second} = {second_entry!r} intersects {first} = "
+                    f"{first_entry!r}: the two inputs would be mixed"
                 )
                 raise SettingsError(msg)
     seen: dict[str, str] = {}
@@ -461,31 +519,71 @@ def _validate_keys(settings: Settings) -> None:
             raise SettingsError(msg)
         seen[value] = name
 
-    wildcard = next(
-        (n for n in ("input_key", "compressed_input_key") if has_wildcard(getattr(settings, n))),
+    several = next(
+        (n for n in _FRAME_INPUTS if StreamNames(getattr(settings, n)).several),
         None,
     )
-    if wildcard is not None:
-        # a concrete input beside a wildcard one would be a stream named "" among the others
-        for name in ("input_key", "compressed_input_key"):
-            value = getattr(settings, name)
-            if value and not has_wildcard(value):
+    if several is None:
+        if len(settings.entries("camera_info_key")) > 1:
+            msg = (
+                f"camera_info_key = {_shown(settings.camera_info_key)} is a list while the "
+                "input is one camera: give one key"
+            )
+            raise SettingsError(msg)
+        return
+    streams = f"{several} = {_shown(getattr(settings, several))} {_why_several(settings, several)}"
+    # a concrete input beside several streams would be a stream named "" among the others
+    for name in _FRAME_INPUTS:
+        value = getattr(settings, name)
+        if value and not StreamNames(value).several:
+            msg = (
+                f"{name} = {value!r} is one concrete key while {streams}: give it the same "
+                "wildcards or a list of the same cameras, or turn it off ('')"
+            )
+            raise SettingsError(msg)
+    # each stream answers on keys of its own; TF is one topic whose transforms each name
+    # their camera's frame
+    for name in (*_OUTPUT_KEYS, *optional):
+        if name in _STREAM_KEYS and name != "tf_key" and STREAM not in getattr(settings, name):
+            msg = (
+                f"{name} = {getattr(settings, name)!r} must hold {STREAM!r}, as {streams}: "
+                f"each stream needs keys of its own (e.g. 'cams/{STREAM}/tag')"
+            )
+            raise SettingsError(msg)
+
+
+def _why_several(settings: Settings, name: str) -> str:
+    value = getattr(settings, name)
+    return "has wildcards" if isinstance(value, str) else "lists several keys"
+
+
+def _validate_key_list(name: str, entries: tuple[str, ...]) -> None:
+    """The entries of one input: no key matched by two of them, each concrete one a stream
+    name of its own (the key less the chunks every entry starts and ends with)."""
+    if len(entries) < 2:
+        return
+    twice = next((e for i, e in enumerate(entries) if e in entries[:i]), None)
+    if twice is not None:
+        msg = f"{name} = {_shown(entries)} gives {twice!r} twice: give each camera once"
+        raise SettingsError(msg)
+    keys = [_key_expr(name, entry) for entry in entries]
+    for i, first in enumerate(entries):
+        for j in range(i + 1, len(entries)):
+            if keys[i].intersects(keys[j]):
                 msg = (
-                    f"{name} = {value!r} is concrete while {wildcard} = "
-                    f"{getattr(settings, wildcard)!r} has wildcards: give it the same "
-                    "wildcards, or turn it off ('')"
+                    f"{name}: the entries {first!r} and {entries[j]!r} overlap (a key both "
+                    "match would be two streams): give each camera once"
                 )
                 raise SettingsError(msg)
-        # each stream answers on keys of its own; TF is one topic whose transforms each name
-        # their camera's frame
-        for name in (*_OUTPUT_KEYS, *optional):
-            if name in _STREAM_KEYS and name != "tf_key" and STREAM not in getattr(settings, name):
-                msg = (
-                    f"{name} = {getattr(settings, name)!r} must hold {STREAM!r}, as "
-                    f"{wildcard} = {getattr(settings, wildcard)!r} has wildcards: each stream "
-                    f"needs keys of its own (e.g. 'cams/{STREAM}/tag')"
-                )
-                raise SettingsError(msg)
+    names = StreamNames(entries)
+    for entry in entries:
+        if not has_wildcard(entry) and not names.entry_name(entry):
+            msg = (
+                f"{name}: the entry {entry!r} names no stream once the chunks common to "
+                f"every entry are left out (streams of {_shown(entries)}: the chunks where "
+                "the entries differ)"
+            )
+            raise SettingsError(msg)
 
 
 def _validate_numbers(settings: Settings) -> None:
@@ -539,27 +637,33 @@ def _validate_ros(settings: Settings) -> None:
     if settings.ros_transport != "rmw_zenoh":
         return
     for topic in ROS_TOPICS:  # on an rmw_zenoh graph each of these keys is a ROS topic name
-        value = getattr(settings, topic.key_setting)
-        # a camera topic may be a pattern ('*/image'), an output its stream's ('{stream}/tag')
-        name = stream_key(value, "stream")
-        if topic.direction is Direction.SUBSCRIBE:
-            name = "/".join("x" if c in ("*", "**") else c for c in name.split("/"))
-        if value and not is_relative_topic(name):
-            msg = (
-                f"{topic.key_setting} = {value!r} is not a relative ROS topic name, as "
-                "ros_transport = 'rmw_zenoh' needs (tokens of letters, digits and underscores "
-                "separated by '/'; '*' chunks only in an input, '{stream}' only in an output)"
-            )
-            raise SettingsError(msg)
+        setting = getattr(settings, topic.key_setting)
+        for value in key_entries(setting):
+            # a camera topic may be a pattern ('*/image'), an output its stream's
+            # ('{stream}/tag')
+            name = stream_key(value, "stream")
+            if topic.direction is Direction.SUBSCRIBE:
+                name = "/".join("x" if c in ("*", "**") else c for c in name.split("/"))
+            if not is_relative_topic(name):
+                shown = "" if isinstance(setting, str) else f" (in {_shown(setting)})"
+                msg = (
+                    f"{topic.key_setting} = {value!r}{shown} is not a relative ROS topic name, "
+                    "as ros_transport = 'rmw_zenoh' needs (tokens of letters, digits and "
+                    "underscores separated by '/'; '*' chunks only in an input, '{stream}' "
+                    "only in an output)"
+                )
+                raise SettingsError(msg)
 
 
 def _validate_text(settings: Settings) -> None:
     """No control character in any text setting: keys and names end up in log lines."""
     for f in fields(Settings):
         value = getattr(settings, f.name)
-        if isinstance(value, str) and any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in value):
-            msg = f"{f.name} = {value!r} holds a control character"
-            raise SettingsError(msg)
+        texts = (value,) if isinstance(value, str) else value if f.name in KEY_LISTS else ()
+        for text in texts:
+            if any(ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F for c in text):
+                msg = f"{f.name} = {text!r} holds a control character"
+                raise SettingsError(msg)
 
 
 def _validate_group(settings: Settings) -> None:
@@ -609,6 +713,13 @@ def _validate(settings: Settings) -> None:
         raise SettingsError(msg)
     dictionary_names(settings.dictionary)
     _validate_numbers(settings)
+    for name in _FRAME_INPUTS:
+        if len(settings.entries(name)) > settings.max_streams:
+            msg = (
+                f"{name} lists {len(settings.entries(name))} keys, more than max_streams = "
+                f"{settings.max_streams}: raise max_streams"
+            )
+            raise SettingsError(msg)
     _validate_intrinsics(settings)
     if (
         settings.metric == "distance"
@@ -620,6 +731,8 @@ def _validate(settings: Settings) -> None:
 
 
 def _field_kind(f: Field[Any]) -> type:
+    if f.name in KEY_LISTS:
+        return list  # one key, or several
     hint = typing.get_type_hints(Settings)[f.name]
     if hint in (str, int, float, bool):
         return typing.cast(type, hint)
@@ -679,6 +792,8 @@ def _coerce(f: Field[Any], value: object) -> object:
     kind = _field_kind(f)
     if kind is tuple:
         return _parse_tag_sizes(value)
+    if kind is list:
+        return _key_list(f.name, value)
     if kind is bool:
         if isinstance(value, bool):
             return value
@@ -777,6 +892,15 @@ def add_settings_arguments(parser: argparse.ArgumentParser) -> None:
                 dest=f.name,
                 action=argparse.BooleanOptionalAction,
                 default=None,
+                help=help_text,
+            )
+        elif kind is list:  # given several times: a list
+            group.add_argument(
+                flag,
+                dest=f.name,
+                action="append",
+                default=None,
+                metavar=f.name.upper(),
                 help=help_text,
             )
         else:

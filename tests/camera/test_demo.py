@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import re
 import threading
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -180,6 +181,12 @@ def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> Non
 def test_a_wildcard_input_key_is_refused_the_camera_publishes_on_it(camera_only: bool) -> None:
     with pytest.raises(SettingsError, match="input_key = 'cams/\\*/image'"):
         demo.main(loopback_config(), STREAMS, camera_only=camera_only, limit=1)
+
+
+def test_a_list_of_input_keys_is_refused_the_camera_publishes_on_one_key() -> None:
+    cameras = replace(STREAMS, input_key=("cams/front/image", "cams/rear/image"))
+    with pytest.raises(SettingsError, match=r"input_key = \['cams/front/image', 'cams/rear"):
+        demo.main(loopback_config(), cameras, limit=1)
 
 
 def test_camera_announces_its_key_while_it_publishes(endpoint: str) -> None:

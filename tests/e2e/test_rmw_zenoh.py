@@ -416,3 +416,74 @@ def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node:
             token = tokens[f"/{name}/image"]
             assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
             assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]
+
+
+def test_a_list_of_camera_topics_each_answer_in_their_own_namespace(
+    endpoint: str, node: RosNode
+) -> None:
+    """Two camera topics listed ('--input-key' twice): the node subscribes each at start, as
+    ROS tools list it before any frame, and each camera's tag and detections are under its
+    own name ('/front/tag')."""
+    session = node.session
+    graph = GraphCache(session)
+    flags = (
+        "--input-key",
+        "front/image",
+        "--input-key",
+        "rear/image",
+        "--compressed-input-key",
+        "",
+        "--tag-key",
+        "{stream}/tag",
+        "--record-key",
+        "cams/{stream}/perception/tags",
+        "--debug-image-key",
+        "{stream}/perception/debug",
+        "--detections-key",
+        "{stream}/perception/detections",
+    )
+    with running_cli(*_service(endpoint, *flags)):
+        wait_for_status(session)
+        # each listed topic's subscription token is there from the start, no frame needed
+        wait_until(
+            lambda: {"/front/image", "/rear/image"} <= set(_service_tokens(graph)),
+            timeout=30,
+            what="the listed cameras' subscription tokens",
+        )
+        tokens = _service_tokens(graph)
+        for name in ("front", "rear"):
+            token = tokens[f"/{name}/image"]
+            assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
+            assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]
+        assert "/zed/left/image" not in tokens
+        records = Collector(session, "cams/*/perception/tags")
+        for entity_id, (name, tag_id) in enumerate((("front", 3), ("rear", 9)), start=1):
+            tags = Collector(session, topic_key(0, f"/{name}/tag", TAG, TAG_HASH))
+            arrays = Collector(
+                session, topic_key(0, f"/{name}/perception/detections", DETECTIONS, "*")
+            )
+            image_key, gid = node.entity(
+                entity_id, PUBLISHER, f"/{name}/image", IMAGE, ROS2_TYPE_HASHES[IMAGE]
+            )
+            publisher = session.declare_publisher(image_key, congestion_control=_BLOCK)
+            wait_for_subscriber(publisher)
+            cdr = encode_image_cdr(_marker_frame(tag_id), "bgra8", stamp_ns=1, frame_id=name)
+            publisher.put(bytes(cdr), attachment=Attachment(1, time.time_ns(), gid).encode())
+            assert TagCodec().decode(tags.get(timeout=30).payload).tag_id == tag_id
+            array: Any = TYPESTORE.deserialize_cdr(arrays.get(timeout=30).payload, DETECTIONS)
+            assert [d.id for d in array.detections] == [tag_id]
+            assert records.get(timeout=30).key == f"cams/{name}/perception/tags"
+            publisher.undeclare()
+        # each camera's outputs are topics of the node under the camera's name
+        wait_until(
+            lambda: (
+                {"/front/tag", "/rear/tag", "/front/perception/detections"}
+                <= set(_service_tokens(graph))
+            ),
+            timeout=30,
+            what="the streams' publisher tokens",
+        )
+        # one subscription token per listed topic: none added by the frames
+        subscriptions = [t for t in graph.of_node("zenoh_perception") if t.kind == SUBSCRIPTION]
+        assert sorted(t.topic for t in subscriptions) == ["/front/image", "/rear/image"]
+    graph.undeclare()

@@ -203,3 +203,28 @@ def test_instances_split_the_streams_hand_them_over_and_answer_each_frame_once(
             zid: rounds * len(held) for zid, held in split.items()
         }
         assert first.poll() is None
+
+
+def test_a_list_of_cameras_is_split_as_a_pattern_is(router: tuple[str, zenoh.Session]) -> None:
+    """``--input-key`` once per camera: the group learns the listed cameras' streams from
+    their announcements, and only theirs (another camera announced beside them is no
+    stream); each instance holds its share and every frame is answered once."""
+    endpoint, session = router
+    cameras = Cameras(session, (*CAMERAS, "side"))
+    records = Collector(session, "cams/*/perception/tags")
+    flags = _instance(endpoint)
+    at = flags.index("--input-key")
+    flags[at : at + 2] = [f for name in CAMERAS for f in ("--input-key", f"cams/{name}/image")]
+    with ExitStack() as stack:
+        stack.callback(cameras.close)
+        for _ in range(2):
+            stack.enter_context(running_cli(*flags))
+        split = _split(session, 2)  # the four listed cameras, not "side"
+        assert sorted(len(held) for held in split.values()) == [2, 2]
+        assert set().union(*split.values()) == {f"cams/{name}/image" for name in CAMERAS}
+        for seq in range(2):
+            assert _answer_each_once(cameras, records, seq) == {(name, seq): 1 for name in CAMERAS}
+        assert _received(session) == {zid: 2 * len(held) for zid, held in split.items()}
+        statuses = _statuses(session).values()
+        streams = {s["name"]: s["tag_key"] for status in statuses for s in status["streams"]}
+        assert streams == {name: f"cams/{name}/tag" for name in CAMERAS}

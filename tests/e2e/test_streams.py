@@ -230,3 +230,65 @@ def test_echo_follows_every_streams_outputs(router: zenoh.Session, endpoint: str
             "cams/front/perception/tags",
             "cams/rear/perception/tags",
         }
+
+
+def _list_flags(*keys: str) -> list[str]:
+    """STREAM_FLAGS with a list of cameras (``--input-key`` once per key) for the pattern."""
+    flags = list(STREAM_FLAGS)
+    at = flags.index("--input-key")
+    del flags[at : at + 2]
+    for key in keys:
+        flags += ["--input-key", key]
+    return flags
+
+
+def test_a_list_of_cameras_is_answered_each_on_its_own_keys(
+    router: zenoh.Session, endpoint: str
+) -> None:
+    """``--input-key`` given twice: two concrete keys, each a stream named by the chunk where
+    they differ, answered on its own ``{stream}`` keys; a key of neither is not subscribed."""
+    args = ("run", "-m", "client", "-e", endpoint, "--no-multicast-scouting")
+    flags = _list_flags("cams/front/image", "cams/rear/image")
+    with running_cli(*args, "--stats-interval-s", "0.3", *flags) as proc:
+        wait_for_status(router)
+        cameras = Cameras(router, ("front", "rear"))
+        # a camera in no entry: nobody subscribes it
+        side = router.declare_publisher("cams/side/image", congestion_control=_BLOCK)
+        cameras.publishers["side"] = side
+        expected = {"front": 3, "rear": 7}
+        for seq, (name, tag_id) in enumerate(expected.items(), start=1):
+            cameras.put("side", 5, seq)  # before, on the same link: never answered
+            cameras.put(name, tag_id, seq)
+            tag_key, answered, record_key, record = cameras.answer()
+            assert (tag_key, answered) == (f"cams/{name}/tag", tag_id)
+            assert record_key == f"cams/{name}/perception/tags"
+            assert record["stream"] == f"cams/{name}/image"
+            assert record["selected"]["tag_id"] == tag_id
+        wait_until(
+            lambda: (query_status(router) or {}).get("frames", {}).get("processed") == 2,
+            what="two frames counted",
+        )
+        status = query_status(router) or {}
+        assert status["frames"]["received"] == 2  # nothing of 'side'
+        streams = {s["name"]: s for s in status["streams"]}
+        assert set(streams) == set(expected)
+        for name in expected:
+            assert streams[name]["stream"] == f"cams/{name}/image"
+            assert streams[name]["tag_key"] == f"cams/{name}/tag"
+            assert streams[name]["frames"]["processed"] == 1
+        assert status["settings"]["input_key"] == ["cams/front/image", "cams/rear/image"]
+        lines = OutputLines(proc)
+        started = lines.wait_for("event=started")
+        assert "input=cams/front/image,cams/rear/image" in started
+        # a stats line per stream, as with a pattern
+        names: set[str] = set()
+        while names != {"cams/front/image", "cams/rear/image"}:
+            names.add(log_events(lines.wait_for("event=stream_stats"), "stream_stats")[0]["stream"])
+
+
+def test_a_list_of_cameras_that_overlap_is_refused_in_one_line() -> None:
+    flags = _list_flags("cams/*/image", "cams/front/image")
+    result = run_cli("run", "--no-multicast-scouting", *flags, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "input_key" in lines[0] and "overlap" in lines[0], lines

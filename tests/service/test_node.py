@@ -9,7 +9,7 @@ import queue
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -89,8 +89,9 @@ def _rig(settings: Settings, endpoint: str) -> Iterator[Rig]:
             tags = Collector(camera, settings.tag_key)
             records = Collector(camera, settings.record_key)
             # BLOCK: Zenoh never drops a large frame when the machine is busy
+            (input_key,) = settings.entries("input_key")
             publisher = camera.declare_publisher(
-                settings.input_key, congestion_control=zenoh.CongestionControl.BLOCK
+                input_key, congestion_control=zenoh.CongestionControl.BLOCK
             )
             wait_for_subscriber(publisher)
             yield Rig(service, camera, publisher, tags, records)
@@ -490,8 +491,45 @@ def test_hold_and_release_subscribe_one_camera_key_at_run_time(endpoint: str) ->
         service.release("cams/front/image")
         wait_until(lambda: not _matching(front), what="the subscription gone")
         assert service.held() == [] and service.streams() == []
-        assert service.status()["frames"]["processed"] == 1  # the totals keep the count
+        # the totals keep the count (the worker counts the frame once its tag is out)
+        wait_until(lambda: service.status()["frames"]["processed"] == 1, what="the frame counted")
         with pytest.raises(SettingsError, match="cams/\\*/image"):
             service.hold("cams/*/image")
         with pytest.raises(SettingsError, match="input_key"):
             service.hold("elsewhere/image")
+
+
+def test_a_list_of_cameras_each_takes_the_camera_info_of_its_own_entry(endpoint: str) -> None:
+    """input_key and camera_info_key both lists: a CameraInfo goes to the stream named as
+    its key is under camera_info_key's list (rear's to rear only)."""
+    settings = replace(
+        STREAMS,
+        input_key=("cams/front/image", "cams/rear/image"),
+        camera_info_key=("cams/front/camera_info", "cams/rear/camera_info"),
+        tag_size_m=0.2,
+    )
+    with (
+        open_session(listen=[endpoint]) as service_session,
+        open_session(connect=[endpoint]) as camera,
+        PerceptionService(service_session, settings) as service,
+    ):
+        records = Collector(camera, "cams/*/perception/tags")
+        info = camera.declare_publisher("cams/rear/camera_info")
+        wait_for_subscriber(info)
+        info.put(_camera_info(500.0))
+        wait_until(lambda: service.status()["camera_info"]["received"] == 1, what="the CameraInfo")
+        image = render_markers(WIDTH, HEIGHT, [(5, square(269.5, 189.5, 100))])
+        distances: dict[str, object] = {}
+        for name in ("front", "rear"):
+            publisher = camera.declare_publisher(f"cams/{name}/image")
+            wait_for_subscriber(publisher)
+            attachment = RawFrameMeta(WIDTH, HEIGHT).to_msgpack()
+            publisher.put(image.tobytes(), attachment=attachment)
+            sample = records.get(timeout=20)
+            assert sample.key == f"cams/{name}/perception/tags"
+            (tag,) = decode_record(sample.payload)["tags"]
+            distances[name] = tag.get("distance_m")
+        assert distances["front"] is None
+        assert distances["rear"] == pytest.approx(1.0, rel=0.03)
+        named = {s["name"]: s["camera_info"]["intrinsics"] for s in service.status()["streams"]}
+        assert named["front"] is None and named["rear"]["fx"] == 500.0

@@ -7,7 +7,14 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from zenoh_perception.wire.stream_keys import STREAM, has_wildcard, stream_key, stream_name
+from zenoh_perception.wire.stream_keys import (
+    STREAM,
+    StreamNames,
+    has_wildcard,
+    key_entries,
+    stream_key,
+    stream_name,
+)
 
 
 @pytest.mark.parametrize(
@@ -72,3 +79,65 @@ def test_a_name_put_in_the_input_comes_back_and_names_the_output(
     assert zenoh.KeyExpr(output) == zenoh.KeyExpr(f"out/{name}/tag")
     other = stream_key("out/{stream}/tag", name + "x")
     assert other != output
+
+
+# -- a list of keys ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("entries", "key", "name"),
+    [
+        (("cams/front/image", "cams/rear/image"), "cams/front/image", "front"),
+        (("cams/front/image", "cams/rear/image"), "cams/rear/image", "rear"),
+        (("front/image", "rear/image"), "rear/image", "rear"),
+        (("rover/front/image", "rover/rear/zed/image"), "rover/rear/zed/image", "rear/zed"),
+        # entries alike at neither end: the whole key
+        (("front/image", "rear/camera"), "front/image", "front/image"),
+        # a pattern entry: its matched key, less the chunks common to every entry
+        (("cams/*/image", "arm/cam/image"), "cams/left/image", "cams/left"),
+        (("cams/*/image", "arm/cam/image"), "arm/cam/image", "arm/cam"),
+        # a wildcard chunk is never common, even where every entry has one
+        (("a/*/image", "a/*/depth"), "a/x/depth", "x/depth"),
+        (("cams/front/image", "cams/rear/image"), "cams/side/image", None),
+        (("cams/front/image", "cams/rear/image"), "cams/front/image/x", None),
+    ],
+)
+def test_a_list_names_a_stream_by_the_chunks_its_entries_do_not_share(
+    entries: tuple[str, ...], key: str, name: str | None
+) -> None:
+    names = StreamNames(entries)
+    assert names.name(key) == name
+    assert names.several
+
+
+@pytest.mark.parametrize(
+    ("pattern", "key"),
+    [
+        ("cams/*/image", "cams/front/image"),
+        ("rover/**/image", "rover/zed/left/image"),
+        ("rover/*/zed/*/image", "rover/a/zed/left/image"),
+        ("zed/left/image", "zed/left/image"),
+        ("zed/left/image", "zed/right/image"),
+    ],
+)
+def test_one_entry_names_its_streams_as_the_key_alone_does(pattern: str, key: str) -> None:
+    assert StreamNames(pattern).name(key) == stream_name(pattern, key)
+    assert StreamNames((pattern,)).name(key) == stream_name(pattern, key)
+    assert StreamNames(pattern).several == has_wildcard(pattern)
+
+
+def test_the_entries_of_an_input_setting() -> None:
+    assert key_entries("") == ()
+    assert key_entries("a/b") == ("a/b",)
+    assert key_entries(("a", "b")) == ("a", "b")
+    assert StreamNames(("a/image", "b/image")).entry_of("b/image") == "b/image"
+    assert StreamNames(("a/*", "b/image")).entry_of("a/x") == "a/*"
+    assert StreamNames(("a/*", "b/image")).entry_of("c/x") is None
+    assert not StreamNames("").several
+
+
+@given(names=st.lists(CHUNK, min_size=2, max_size=5, unique=True))
+def test_the_cameras_of_a_list_come_back_as_their_names(names: list[str]) -> None:
+    """Cameras listed as ``rover/<name>/image``: each key names its camera's stream."""
+    streams = StreamNames(tuple(f"rover/{name}/image" for name in names))
+    assert [streams.name(f"rover/{name}/image") for name in names] == names

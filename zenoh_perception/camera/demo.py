@@ -294,17 +294,19 @@ def main(
     Raises:
         SettingsError: a frame of ``resolution`` exceeds ``settings.max_frame_bytes``, or that
             limit exceeds Zenoh's message limit; ``input_key``, which the camera publishes on,
-            holds a wildcard.
+            holds a wildcard or is a list.
         SessionError: the Zenoh session cannot be opened.
 
     """
-    if has_wildcard(settings.input_key):
+    if not isinstance(settings.input_key, str) or has_wildcard(settings.input_key):
+        key = settings.input_key
+        shown, what = (key, "wildcard") if isinstance(key, str) else (list(key), "list")
         msg = (
-            f"input_key = {settings.input_key!r}: the demo's camera publishes on it, so it must "
-            "be one camera's key (e.g. 'rover/front/image'); run the service on the wildcard "
-            "apart"
+            f"input_key = {shown!r}: the demo's camera publishes on it, so it must be one "
+            f"camera's key (e.g. 'rover/front/image'); run the service on the {what} apart"
         )
         raise SettingsError(msg)
+    input_key = settings.input_key
     if not camera_only:
         check_transport_limit(conf, settings)
     stop = stop or threading.Event()
@@ -329,7 +331,7 @@ def main(
         def camera() -> int:
             return publish_camera(
                 session,
-                settings.input_key,
+                input_key,
                 scenes,
                 fps=fps,
                 cdr=cdr,

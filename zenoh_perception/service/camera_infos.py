@@ -1,8 +1,9 @@
 """The CameraInfos the service receives: each decoded and checked, handed to the streams it
 is for, and kept (a bounded number, the newest) for the streams made later.
 
-With a wildcard input a CameraInfo is its stream's (named as the frames' keys are); a
-concrete ``camera_info_key``'s is every stream's (kept under the name ``""``).
+With several streams (a wildcard or list input) a CameraInfo is its stream's (its key named
+under ``camera_info_key`` as the frames' keys are under the input: a pattern or list there
+too); a concrete ``camera_info_key``'s is every stream's (kept under the name ``""``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.stream import CameraInfo, Stream
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
-from zenoh_perception.wire.stream_keys import stream_name
+from zenoh_perception.wire.stream_keys import StreamNames
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
 log = logging.getLogger("zenoh_perception.service.node")
@@ -51,6 +52,7 @@ class CameraInfos:
         self._totals = totals
         self._gate = gate
         self._named = named
+        self._names = StreamNames(settings.camera_info_key)
         self._streams = streams
         self._lock = lock
         # CameraInfos by stream name ("" for every stream), for streams made later too
@@ -83,7 +85,7 @@ class CameraInfos:
         name = ""
         if self._named:
             topic = self._ros.topic_of(str(sample.key_expr))
-            name = stream_name(self._settings.camera_info_key, topic) or ""
+            name = self._names.name(topic) or ""
         with self._lock:
             self._infos[name] = camera
             self._infos.move_to_end(name)

@@ -2,9 +2,10 @@
 pipeline to Zenoh.
 
 Each camera is a stream (:mod:`~zenoh_perception.service.stream`): a concrete ``input_key``
-is one, declared at start; a wildcard one (``cams/*/image``) is a stream per concrete key it
-matches, made when its first frame comes (at most ``max_streams``; further keys' frames are
-refused and counted) and forgotten after ``stream_idle_s`` without a frame
+is one, declared at start; a wildcard one (``cams/*/image``), or a list of keys (each
+subscribed apart), is a stream per concrete key it matches, made when its first frame comes
+(at most ``max_streams``; further keys' frames are refused and counted) and forgotten after
+``stream_idle_s`` without a frame
 (:mod:`~zenoh_perception.service.registry`). By default the service subscribes its input keys
 itself; built with ``subscribe_inputs=False`` it subscribes only the concrete keys it is told
 to :meth:`PerceptionService.hold` (instances sharing cameras each hold theirs, or a share
@@ -67,7 +68,6 @@ from zenoh_perception.service.stream import (
 from zenoh_perception.service.workers import Workers, usable_cpus
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.records import TagCodec
-from zenoh_perception.wire.stream_keys import has_wildcard
 
 log = logging.getLogger("zenoh_perception.service.node")
 
@@ -89,8 +89,8 @@ class PerceptionService:
     Two ways to say which cameras it serves:
 
     - ``subscribe_inputs=True`` (the default, ``run``): it subscribes ``input_key`` and
-      ``compressed_input_key`` itself (through the ROS transport), and every concrete key
-      their wildcards match is a stream.
+      ``compressed_input_key`` itself (through the ROS transport; each key of a list apart),
+      and every concrete key their wildcards or lists match is a stream.
     - ``subscribe_inputs=False``: it subscribes no frames until told; :meth:`hold` subscribes
       one concrete camera key (a stream) and :meth:`release` unsubscribes it and forgets its
       stream. Everything else (outputs per stream, CameraInfo, status, liveliness) is as in
@@ -123,10 +123,9 @@ class PerceptionService:
         self._gate = LogGate(settings.log_interval_s)
         self._others = OtherServices(settings, self._gate, zid=self._zid, stop=self._stop)
         self._scheduler: Scheduler[Stream, Arrival] = Scheduler()
-        #: Several streams: a wildcard input (a concrete one is one stream, made at start).
-        self.wildcard = has_wildcard(settings.input_key) or has_wildcard(
-            settings.compressed_input_key
-        )
+        #: Several streams: a wildcard or list input (a concrete key is one stream, made at
+        #: start).
+        self.wildcard = settings.several
         self._shared = Shared(
             settings=settings,
             session=session,
@@ -145,8 +144,8 @@ class PerceptionService:
         # per held key: its subscription
         self._held: dict[str, Any] = {}
         self._held_lock = threading.Lock()
-        # the key expression each input role's samples match, and its stream names' source
-        self._patterns: dict[str, str] = {}
+        # how each input role's keys name their streams
+        self._patterns = input_patterns(settings)
         #: Set when a worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
         self._workers = Workers(self._scheduler, self._stop, self.failed, self._streams.guarded)
@@ -191,7 +190,7 @@ class PerceptionService:
             # child processes ready before the first frame, as a single camera's service was
             self._streams.open_single()
         if s.camera_info_key:
-            self._declared.append(
+            self._declared.extend(
                 self._ros.subscribe("camera_info", self._streams.camera_infos.on_sample)
             )
         self._declared.append(session.declare_queryable(s.status_key, self._on_status_query))
@@ -217,14 +216,13 @@ class PerceptionService:
             thread.start()
         for _ in range(self._worker_count()):
             self._workers.start_one()
-        self._patterns = input_patterns(s)
         if s.share_group:
             # only the announced streams the group gives this instance, each on its key
             self._group = StreamGroup(
                 session,
                 name=s.share_group,
                 liveliness_key=s.liveliness_key,
-                patterns=[k for k in (s.input_key, s.compressed_input_key) if k],
+                patterns=[*s.entries("input_key"), *s.entries("compressed_input_key")],
                 take=self.hold,
                 release=self.release,
             )
@@ -233,18 +231,17 @@ class PerceptionService:
         if not self._subscribe_inputs:
             return
         # Subscribe last: every frame that arrives finds the workers ready.
+        # a subscription per key of each input (Zenoh has no union of key expressions)
         if self._ros.rmw_zenoh:
-            # raw frames (msgpack attachment) keep coming on the plain key
+            # raw frames (msgpack attachment) keep coming on the plain keys
+            for key in s.entries("input_key"):
+                self._declared.append(session.declare_subscriber(key, partial(self._on_input, RAW)))
             if s.input_key:
-                self._declared.append(
-                    session.declare_subscriber(s.input_key, partial(self._on_input, RAW))
-                )
-            if s.input_key:
-                self._declared.append(self._ros.subscribe("camera", partial(self._on_input, ROS)))
+                self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, ROS)))
         elif s.input_key:
-            self._declared.append(self._ros.subscribe("camera", partial(self._on_input, RAW)))
+            self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, RAW)))
         if s.compressed_input_key:
-            self._declared.append(
+            self._declared.extend(
                 self._ros.subscribe("compressed_camera", partial(self._on_input, COMPRESSED))
             )
 
@@ -427,7 +424,9 @@ class PerceptionService:
                 continue
             next_report += interval
             report.log_stats(
-                self.status(), per_stream=self.wildcard, input_key=self.settings.input_key
+                self.status(),
+                per_stream=self.wildcard,
+                input_key=",".join(self.settings.entries("input_key")),
             )
 
 

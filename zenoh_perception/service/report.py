@@ -24,7 +24,8 @@ def log_started(
 ) -> None:
     """The ``event=started`` line: the version, the keys served and the settings that matter.
 
-    ``named``: a wildcard input (streams named after their keys, up to ``max_streams``).
+    ``named``: a wildcard or list input (streams named after their keys, up to
+    ``max_streams``).
     """
     s = settings
     log.info(
@@ -33,8 +34,8 @@ def log_started(
             version=__version__,
             zid=zid,
             ros_transport=s.ros_transport,
-            input=ros.key("camera") if s.input_key else "",
-            compressed_input=(ros.key("compressed_camera") if s.compressed_input_key else ""),
+            input=",".join(ros.keys("camera")),
+            compressed_input=",".join(ros.keys("compressed_camera")),
             tag=s.tag_key if named else ros.key("tag"),
             record=s.record_key,
             detector=s.detector,

@@ -32,7 +32,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     type_hash,
 )
 from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
-from zenoh_perception.wire.stream_keys import has_wildcard, stream_key
+from zenoh_perception.wire.stream_keys import has_wildcard, key_entries, stream_key
 
 RMW_ZENOH: str = "rmw_zenoh"
 
@@ -125,16 +125,22 @@ class RosTransport:
             return None
         return self._session.liveliness().declare_token(self.node.node_token())
 
-    def key(self, role: str, stream: str = "") -> str:
+    def key(self, role: str, stream: str = "", *, entry: str | None = None) -> str:
         """The Zenoh key (expression) of topic ``role``; of stream ``stream``'s topic when its
-        key setting holds ``{stream}``."""
+        key setting holds ``{stream}``; of ``entry`` (one of its entries) when the setting is
+        a list."""
         topic = ros_topic(role)
-        bridge_key = stream_key(str(getattr(self._settings, topic.key_setting)), stream)
+        bridge_key = stream_key(self._setting(topic) if entry is None else entry, stream)
         if not self.rmw_zenoh:
             return bridge_key
         hash_ = ANY_HASH if topic.any_hash else self._hash(topic)
-        fq_topic = self._fq_topic(topic, stream)
+        fq_topic = fully_qualified(self.node.namespace, bridge_key)
         return topic_key(self.node.domain_id, fq_topic, self._type(topic), hash_)
+
+    def keys(self, role: str) -> list[str]:
+        """The Zenoh key (expression) of each entry of subscribed topic ``role``'s setting."""
+        entries = key_entries(getattr(self._settings, ros_topic(role).key_setting))
+        return [self.key(role, entry=entry) for entry in entries]
 
     def topic_of(self, key: str) -> str:
         """The part of ``key`` (a sample's key on one of the service's topics) that its key setting
@@ -161,26 +167,27 @@ class RosTransport:
             token=self._session.liveliness().declare_token(token),
         )
 
-    def subscribe(self, role: str, callback: Callable[[zenoh.Sample], Any]) -> _Subscription:
-        topic = ros_topic(role)
-        assert topic.direction is Direction.SUBSCRIBE, role
-        return self.subscribe_key(role, self.key(role), callback)
+    def subscribe(self, role: str, callback: Callable[[zenoh.Sample], Any]) -> list[_Subscription]:
+        """Subscribe topic ``role``: a subscription per entry of its setting (one key, or
+        each of a list: Zenoh subscribes one key expression at a time).
 
-    def subscribe_key(
-        self, role: str, key: str, callback: Callable[[zenoh.Sample], Any]
-    ) -> _Subscription:
-        """Subscribe ``key`` (the key of topic ``role``, or one it matches) for ``role``.
-
-        On an rmw_zenoh graph a topic named by a pattern has no liveliness token here: a ROS
-        name holds no wildcard (each camera topic it matches gets its own once its first frame
-        comes: :meth:`stream_subscription`).
+        On an rmw_zenoh graph a concrete topic's subscription declares its liveliness token
+        at once; a topic named by a pattern has none here: a ROS name holds no wildcard (each
+        camera topic it matches gets its own once its first frame comes:
+        :meth:`stream_subscription`).
         """
         topic = ros_topic(role)
-        subscriber = self._session.declare_subscriber(key, callback)
-        pattern = has_wildcard(str(getattr(self._settings, topic.key_setting)))
-        token = None if pattern else self._token(topic, SUBSCRIPTION)
-        declared = None if token is None else self._session.liveliness().declare_token(token)
-        return _Subscription(subscriber, declared)
+        assert topic.direction is Direction.SUBSCRIBE, role
+        subscriptions = []
+        for entry in key_entries(getattr(self._settings, topic.key_setting)):
+            subscriber = self._session.declare_subscriber(self.key(role, entry=entry), callback)
+            token = None
+            if not has_wildcard(entry):
+                fq_topic = fully_qualified(self.node.namespace, entry)
+                token = self._token(topic, SUBSCRIPTION, fq_topic=fq_topic)
+            declared = None if token is None else self._session.liveliness().declare_token(token)
+            subscriptions.append(_Subscription(subscriber, declared))
+        return subscriptions
 
     def stream_subscription(self, key: str) -> zenoh.LivelinessToken | None:
         """On an rmw_zenoh graph, the liveliness token of the node's subscription to the
@@ -193,14 +200,24 @@ class RosTransport:
         concrete = zenoh.KeyExpr(key)
         for role in ("camera", "compressed_camera"):
             topic = ros_topic(role)
-            setting = str(getattr(self._settings, topic.key_setting))
-            if not has_wildcard(setting) or not zenoh.KeyExpr(self.key(role)).intersects(concrete):
-                continue
-            fq_topic = fully_qualified(self.node.namespace, self.topic_of(key))
-            token = self._token(topic, SUBSCRIPTION, fq_topic=fq_topic)
-            assert token is not None
-            return self._session.liveliness().declare_token(token)
+            for entry in key_entries(getattr(self._settings, topic.key_setting)):
+                # a concrete entry's token is declared with its subscription
+                if not has_wildcard(entry) or not zenoh.KeyExpr(
+                    self.key(role, entry=entry)
+                ).intersects(concrete):
+                    continue
+                fq_topic = fully_qualified(self.node.namespace, self.topic_of(key))
+                token = self._token(topic, SUBSCRIPTION, fq_topic=fq_topic)
+                assert token is not None
+                return self._session.liveliness().declare_token(token)
         return None
+
+    def _setting(self, topic: RosTopic) -> str:
+        """The key setting of ``topic``, which holds one key (an output, or an input that is
+        not a list)."""
+        value = getattr(self._settings, topic.key_setting)
+        assert isinstance(value, str), (topic.key_setting, value)
+        return value
 
     def _type(self, topic: RosTopic) -> str:
         return topic.type_name(self._settings.ros_package)
@@ -209,7 +226,7 @@ class RosTransport:
         return type_hash(self._store, self._type(topic))
 
     def _fq_topic(self, topic: RosTopic, stream: str = "") -> str:
-        name = stream_key(str(getattr(self._settings, topic.key_setting)), stream)
+        name = stream_key(self._setting(topic), stream)
         return fully_qualified(self.node.namespace, name)
 
     def _token(

@@ -2,7 +2,8 @@
 outputs.
 
 A concrete ``input_key`` is one stream; a wildcard one (``cams/*/image``) is a stream per
-concrete key it matches, named by the chunks its wildcards matched
+concrete key it matches, named by the chunks its wildcards matched, and a list of keys a
+stream per key (or per key an entry matches), named by the chunks where the entries differ
 (:mod:`~zenoh_perception.wire.stream_keys`), whose outputs are the output keys with
 ``{stream}`` replaced by that name. Nothing of a stream is shared with another but the
 session, the codec, the log rate limit and a publisher two streams' keys name alike (a TF

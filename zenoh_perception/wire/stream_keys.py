@@ -6,6 +6,11 @@ with ``**`` matching several chunks, those chunks joined by ``/``). An output ke
 :data:`STREAM` (``cams/{stream}/tag``) is that stream's key once the name is put in its place.
 A concrete input key has one stream, named ``""``.
 
+An input may also be a list of key expressions (:data:`Keys`, each entry concrete or a
+pattern): each concrete key an entry matches is a stream, named by the key without the chunks
+common to the start and the end of every entry (``cams/front/image`` and ``cams/rear/image``
+-> ``front`` and ``rear``; :class:`StreamNames`). A list of one entry is that entry alone.
+
 Pure: no Zenoh, no logging.
 """
 
@@ -13,7 +18,10 @@ from __future__ import annotations
 
 import re
 from functools import lru_cache
-from typing import Final
+from typing import Final, TypeAlias
+
+#: An input setting: one key expression, or several (a list of two or more entries).
+Keys: TypeAlias = str | tuple[str, ...]
 
 #: The placeholder of an output key that the stream's name replaces.
 STREAM: Final = "{stream}"
@@ -70,3 +78,73 @@ def stream_key(template: str, name: str) -> str:
     if STREAM not in template:
         return template
     return "/".join(chunk for chunk in template.replace(STREAM, name).split("/") if chunk)
+
+
+def key_entries(keys: Keys) -> tuple[str, ...]:
+    """The entries of an input setting: ``()`` when off (``""``)."""
+    if isinstance(keys, str):
+        return (keys,) if keys else ()
+    return keys
+
+
+def _literal(chunk: str) -> bool:
+    return "*" not in chunk
+
+
+def _common_chunks(entries: tuple[tuple[str, ...], ...]) -> int:
+    """How many leading chunks every entry has alike, none of them a wildcard."""
+    count = 0
+    for chunks in zip(*entries, strict=False):
+        if not _literal(chunks[0]) or any(c != chunks[0] for c in chunks):
+            break
+        count += 1
+    return count
+
+
+class StreamNames:
+    """How the concrete keys of one input (``keys``: an input setting) name their streams.
+
+    One entry: :func:`stream_name` (the chunks its wildcards matched; ``""`` for a concrete
+    key). Several: the key matched by an entry, without the chunks common to the start and
+    the end of every entry (wildcard chunks are never common), so ``front/image`` and
+    ``rear/image`` are the streams ``front`` and ``rear``.
+    """
+
+    def __init__(self, keys: Keys) -> None:
+        self.entries = key_entries(keys)
+        split = tuple(tuple(e.split("/")) for e in self.entries)
+        self._head = self._tail = 0
+        if len(split) > 1:
+            self._head = _common_chunks(split)
+            # the tail never reaches back into the head of the shortest entry
+            room = min(len(chunks) for chunks in split) - self._head
+            self._tail = min(room, _common_chunks(tuple(c[::-1] for c in split)))
+
+    @property
+    def several(self) -> bool:
+        """Whether the input can have several streams (a pattern, or two entries or more)."""
+        return len(self.entries) > 1 or any(has_wildcard(e) for e in self.entries)
+
+    def entry_of(self, key: str) -> str | None:
+        """The entry that matches the concrete ``key`` (None: none)."""
+        for entry in self.entries:
+            if stream_name(entry, key) is not None:
+                return entry
+        return None
+
+    def name(self, key: str) -> str | None:
+        """The name of the stream of the concrete ``key``; None when no entry matches it."""
+        if len(self.entries) == 1:
+            return stream_name(self.entries[0], key)
+        if self.entry_of(key) is None:
+            return None
+        chunks = key.split("/")
+        return "/".join(chunks[self._head : len(chunks) - self._tail])
+
+    def entry_name(self, entry: str) -> str:
+        """The name of a concrete ``entry``'s stream (with wildcards: its own pattern of names,
+        the chunks left once the common ones are removed)."""
+        chunks = entry.split("/")
+        if len(self.entries) == 1:
+            return "" if not has_wildcard(entry) else entry
+        return "/".join(chunks[self._head : len(chunks) - self._tail])
