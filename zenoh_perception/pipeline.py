@@ -126,8 +126,11 @@ class TagFinder:
         self.vetoed: Counter[str] = Counter(dict.fromkeys(VETO_REASONS, 0))
 
     def find(self, frame: Frame) -> tuple[list[Detection], float]:
-        """The tags in ``frame``, and the seconds spent converting it to grey first."""
+        """The tags in ``frame`` (what the service's :class:`Pipeline` reports), and the
+        seconds spent converting it to grey first."""
         gray, detections, convert_s = self.detect(frame)
+        if self.judges_one_by_one:  # as the service's pipeline: its look after the tag
+            detections += self.look_again()
         return self.screen(gray, detections), convert_s
 
     def detect(self, frame: Frame) -> tuple[Gray, list[Detection], float]:
@@ -143,6 +146,19 @@ class TagFinder:
         if self._min_side_px > 0.0 and detections:
             detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
         return gray, detections, converted - start
+
+    def look_again(self) -> list[Detection]:
+        """The markers the detector's second look adds to the frame :meth:`detect` read last,
+        where that look was left until after the frame's tag (see
+        :mod:`~zenoh_perception.detect.second_look`); those at least ``min_side_px`` a side.
+        Once per frame, after :meth:`detect`."""
+        later = getattr(self.detector, "look_again", None)
+        if later is None:
+            return []
+        added: list[Detection] = later()
+        if self._min_side_px > 0.0 and added:
+            added = [d for d in added if mean_side(d.corners) >= self._min_side_px]
+        return added
 
     def screen(self, gray: Gray, detections: list[Detection]) -> list[Detection]:
         """The last steps of :meth:`find`: the verifier's vetoes, then the confirmation."""
@@ -258,6 +274,8 @@ class Pipeline:
             return observe(detection, width, height, self.settings, intrinsics)
 
         if not (detections and finder.judges_one_by_one):
+            # no tag before every detection is judged (no verifier, or confirmation): a second
+            # look left until after the tag is not taken, since the tag would wait for it
             detections = finder.screen(gray, detections)
             tags = tuple(observed(d) for d in detections)
             detect_s = time.perf_counter() - start - convert_s
@@ -283,6 +301,10 @@ class Pipeline:
 
         def finish() -> Analysis:
             started = time.perf_counter()
+            # the second look left until after the tag: smaller markers than the one selected
+            added = finder.look_again()
+            detections.extend(added)
+            observations.extend(observed(d) for d in added)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
                     verdicts[index] = finder.judge(gray, detection)

@@ -8,7 +8,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.second_look import MAX_SIDE_PX, PERIOD, SecondLook
+from zenoh_perception.detect.second_look import LATER, MAX_SIDE_PX, NOW, PERIOD, SecondLook
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.scene.lookalikes import lookalike_frame
@@ -60,29 +60,50 @@ def test_the_look_finds_a_marker_too_small_for_the_default_read() -> None:
     assert np.allclose(centre, (300 + 8, 200 + 8), atol=1.0)
 
 
-def test_a_frame_with_a_large_marker_is_not_looked_at_so_its_tag_never_waits() -> None:
+def test_beside_a_large_marker_the_look_comes_after_the_frame_s_tag() -> None:
     look = SecondLook((DICTIONARY,))
+    detector = OpenCvDetector(DICTIONARY, second_look=look)
     frame = _frame(SMALL, (3, 60, 40, 40))
-    found = OpenCvDetector(DICTIONARY, second_look=look).detect(frame)
-    assert _ids(found) == [3]  # the small one too would need the look
+    assert _ids(detector.detect(frame)) == [3]  # the read returns before the look
     assert look.counters["looks"] == 0
+    assert _ids(detector.look_again()) == [7]  # only what the look adds
+    assert detector.look_again() == []  # once a frame
+
+
+def test_the_service_s_tag_does_not_wait_for_a_look_that_cannot_change_it() -> None:
+    pipeline = Pipeline(Settings())
+    pending = pipeline.begin(_bgra(_frame(SMALL, (3, 60, 40, 40))))
+    assert pending.selected.tag_id == 3
+    detector = pipeline._finder.detector
+    assert isinstance(detector, OpenCvDetector)
+    assert isinstance(detector.second_look, SecondLook)
+    assert detector.second_look.counters["looks"] == 0  # not taken before the tag
+    analysis = pending.finish()
+    assert sorted(t.tag_id for t in analysis.tags) == [3, 7]
+    assert analysis.selected.tag_id == 3
 
 
 def test_large_frames_are_not_looked_at() -> None:
     look = SecondLook((DICTIONARY,))
-    assert not look.wanted((MAX_SIDE_PX + 1, 640), [])
-    assert look.wanted((MAX_SIDE_PX, 640), [])
+    assert look.due((MAX_SIDE_PX + 1, 640), []) is None
+    assert look.due((MAX_SIDE_PX, 640), []) == NOW
 
 
 def test_looks_on_the_first_frame_every_period_and_when_fewer_or_none_are_found() -> None:
     look = SecondLook((DICTIONARY,))
     small = Detection(1, np.asarray([[0, 0], [10, 0], [10, 10], [0, 10]], np.float32))
     shape = (480, 640)
-    looked = [look.wanted(shape, [small]) for _ in range(PERIOD + 1)]
-    assert looked == [True] + [False] * (PERIOD - 1) + [True]
-    assert look.wanted(shape, [])  # none found
-    assert not look.wanted(shape, [small])  # one again, more than before
-    assert look.wanted(shape, [])
+    looked = [look.due(shape, [small]) for _ in range(PERIOD + 1)]
+    assert looked == [NOW] + [None] * (PERIOD - 1) + [NOW]
+    assert look.due(shape, []) == NOW  # none found
+    assert look.due(shape, [small]) is None  # one again, more than before
+    large = Detection(2, np.asarray([[0, 0], [40, 0], [40, 40], [0, 40]], np.float32))
+    assert look.due(shape, []) == NOW
+    assert look.due(shape, [large]) is None
+    assert look.due(shape, []) == NOW  # frame 2 * PERIOD - 3
+    assert look.due(shape, [large, small]) is None
+    assert look.due(shape, [large, small]) is None
+    assert look.due(shape, [large, small]) == LATER  # due, but a larger marker is there
 
 
 def test_the_look_adds_nothing_the_default_read_found() -> None:

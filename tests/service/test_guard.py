@@ -17,7 +17,7 @@ import pytest
 from tests.helpers import wait_until
 from tools.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError
 from zenoh_perception.service.guard import LOW_PRIORITY, GuardedDetector, StaleDetection
 
@@ -264,3 +264,26 @@ def test_abandon_gives_an_abandoned_thread_its_priority_back_where_permitted(
     RELEASE.set()
     reader.join(5.0)
     assert isinstance(reader.error, StaleDetection)
+
+
+def _opencv() -> Detector:
+    return make_detector("opencv", "DICT_4X4_50")
+
+
+def test_the_look_after_the_tag_is_read_in_process_under_the_guard() -> None:
+    from tests.detect.test_second_look import SMALL, _frame
+
+    guarded = GuardedDetector(_opencv, 0.3)
+    guarded.start()
+    try:
+        frame = _frame(SMALL, (3, 60, 40, 40))  # a large marker: the small one's look waits
+        assert [d.tag_id for d in guarded.detect(frame)] == [3]
+        assert [d.tag_id for d in guarded.look_again()] == [7]
+        assert guarded.look_again() == []
+        assert not guarded.reading
+        guarded.detect(frame)
+        guarded.abandon()  # shutting down: no read starts, the look's neither
+        with pytest.raises(StaleDetection):
+            guarded.look_again()
+    finally:
+        guarded.close()

@@ -97,6 +97,8 @@ class OpenCvDetector:
         #: a second read of small frames for markers too small for the default read (see
         #: detect/second_look.py); None: OpenCV's default read alone
         self.second_look = second_look
+        # the frame read last and what its read found, when its look comes after its tag
+        self._later: tuple[npt.NDArray[np.uint8], list[Detection]] | None = None
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
         if len(self.dictionaries) == 1:
@@ -119,10 +121,24 @@ class OpenCvDetector:
         found = self._detect(image, (0, 0))
         self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
         found = [d for d in found if self.grids.keep(d.corners)]
+        self._later = None
         look = self.second_look
-        if frame and look is not None and look.wanted(gray.shape, found):
-            found = look.look(image, found, self.grids.keep)
+        if frame and look is not None:
+            due = look.due(gray.shape, found)
+            if due == "now":
+                found = look.look(image, found, self.grids.keep)
+            elif due == "later":
+                self._later = (image, found)
         return found
+
+    def look_again(self) -> list[Detection]:
+        """What the second look adds to the frame read last, where its look was left until
+        after the frame's tag (see detect/second_look.py); once per frame, [] otherwise."""
+        later, self._later = self._later, None
+        if later is None or self.second_look is None:
+            return []
+        image, found = later
+        return self.second_look.look(image, found, self.grids.keep)[len(found) :]
 
     def detect_region(
         self,

@@ -10,11 +10,12 @@ The look costs about four default reads of the frame, so it is taken only where 
 
 - on frames up to :data:`MAX_SIDE_PX` a side (an HD720 frame read at 2x would cost several
   times a frame's budget);
-- only when every marker the default read found is small (mean side up to
-  :data:`SMALL_SIDE_PX`): the look keeps only markers that small, so when a larger one is in
-  the frame it could never find the closest, and the frame's tag does not wait for it;
 - on the stream's first frame and every :data:`PERIOD` frames after, when the default read
   found nothing, or fewer markers than on the frame before (one may have shrunk from view).
+
+The look keeps only small markers (mean side up to :data:`SMALL_SIDE_PX`). Where the default
+read found a larger one, the look can never find the closest marker, so it is taken
+:data:`LATER`: after the frame's tag is out, for the frame's other detections.
 
 What it finds is merged where no marker of the same id is at that place. Pure: no Zenoh, no
 logging.
@@ -45,12 +46,15 @@ WINDOW_PX: Final = 13
 SMALL_SIDE_PX: Final = 32.0
 #: Every how many frames the look is taken when nothing changed.
 PERIOD: Final = 8
+#: :meth:`SecondLook.due`: look before the frame's tag is chosen, or after it is out.
+NOW: Final = "now"
+LATER: Final = "later"
 
 
 class SecondLook:
-    """The look of one stream (see the module documentation): :meth:`wanted` says whether a
-    frame gets it, :meth:`look` takes it. ``counters`` count frames looked at and markers
-    added."""
+    """The look of one stream (see the module documentation): :meth:`due` says whether and
+    when a frame gets it, :meth:`look` takes it. ``counters`` count frames looked at and
+    markers added."""
 
     def __init__(self, dictionaries: Sequence[str]) -> None:
         params = cv2.aruco.DetectorParameters()
@@ -64,16 +68,18 @@ class SecondLook:
         self._previous = 0
         self.counters: dict[str, int] = {"looks": 0, "added": 0}
 
-    def wanted(self, shape: tuple[int, ...], found: Sequence[Detection]) -> bool:
-        """Whether the frame of ``shape`` whose default read found ``found`` gets the look;
-        counts the frame."""
+    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
+        """When the frame of ``shape`` whose default read found ``found`` gets the look:
+        :data:`NOW`, :data:`LATER` or None (not at all); counts the frame."""
         index, previous = self._frames, self._previous
         self._frames, self._previous = index + 1, len(found)
         if max(shape[:2]) > MAX_SIDE_PX:
-            return False
+            return None
+        if not (index % PERIOD == 0 or not found or len(found) < previous):
+            return None
         if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
-            return False
-        return index % PERIOD == 0 or not found or len(found) < previous
+            return LATER
+        return NOW
 
     def look(
         self,

@@ -145,6 +145,7 @@ class TrackingDetector:
         self._tracks: list[_Track] = []
         self._thumb: Change | None = None
         self._since_scan = 0
+        self._scanned = False  # the frame read last was scanned whole
         self.counters: dict[str, int] = dict.fromkeys(
             (
                 "frames",
@@ -161,6 +162,7 @@ class TrackingDetector:
         )
 
     def detect(self, gray: Gray) -> list[Detection]:
+        self._scanned = False
         self.counters["frames"] += 1
         self._since_scan += 1
         height, width = gray.shape[:2]
@@ -249,7 +251,13 @@ class TrackingDetector:
                 return True
         return False
 
+    def look_again(self) -> list[Detection]:
+        """What the second look adds to the frame read last when it was scanned whole and its
+        look left until after its tag (see :meth:`OpenCvDetector.look_again`)."""
+        return self._opencv.look_again() if self._scanned else []
+
     def _scan(self, gray: Gray) -> list[Detection]:
+        self._scanned = True
         self.counters["scans"] += 1
         self._since_scan = 0
         found = self._opencv.detect(gray)

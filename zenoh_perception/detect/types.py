@@ -100,8 +100,9 @@ class Looker(Protocol):
     """A second read of a whole frame after the detector's (see
     :class:`~zenoh_perception.detect.second_look.SecondLook`)."""
 
-    def wanted(self, shape: tuple[int, ...], found: Sequence[Detection]) -> bool:
-        """Whether the frame of ``shape`` whose first read found ``found`` is read again."""
+    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
+        """When the frame of ``shape`` whose first read found ``found`` is read again: "now",
+        "later" (after its tag is out) or None."""
         ...
 
     def look(

@@ -144,6 +144,24 @@ class GuardedDetector:
             self._finish(read)
         return found
 
+    def look_again(self) -> list[Detection]:
+        """What the in-process detector's second look adds to the frame it read last, where
+        that look was left until after the frame's tag; read under the deadline as
+        :meth:`detect` is. None while frames go to the child: its look is not taken."""
+        later = getattr(self._local, "look_again", None)
+        if later is None or self.in_child:
+            return []
+        read = _Read(time.monotonic(), threading.get_ident(), threading.get_native_id())
+        with self._lock:
+            if self._closing:
+                raise StaleDetection
+            self._read = read
+        try:
+            found: list[Detection] = later()
+        finally:
+            self._finish(read)
+        return found
+
     def _finish(self, read: _Read) -> None:
         """End ``read``: raise :class:`StaleDetection` when it was abandoned meanwhile."""
         with self._lock:
