@@ -150,10 +150,13 @@ class ServiceProcess:
         bench_endpoint: str,
         dictionary: str = DICTIONARY,
         extra: Sequence[str] = (),
+        *,
+        input_key: str = "",
     ) -> None:
         self.name = name
         prefix = f"bench/{name}"
-        self.input_key = f"{prefix}/image"
+        # one key: a second --input-key flag would add a camera, not replace this one
+        self.input_key = input_key or f"{prefix}/image"
         self.tag_key = f"{prefix}/tag"
         self.record_key = f"{prefix}/tags"
         self.status_key = f"{prefix}/status"

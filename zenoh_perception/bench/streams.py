@@ -91,8 +91,6 @@ def _pct(values: Sequence[float], pct: float) -> float | None:
 
 def _flags() -> tuple[str, ...]:
     return (
-        "--input-key",
-        f"{PREFIX}/*/image",
         "--compressed-input-key",
         "",
         "--tag-key",
@@ -237,7 +235,9 @@ def measure(seconds: float, seed: int, flags: Sequence[str] = ()) -> dict[str, A
     endpoint = loopback_endpoint()
     with zenoh.open(loopback_config(listen=[endpoint])) as session:
         bench = _Bench(session)
-        service = ServiceProcess("streams", "opencv", endpoint, extra=(*_flags(), *flags))
+        service = ServiceProcess(
+            "streams", "opencv", endpoint, extra=(*_flags(), *flags), input_key=f"{PREFIX}/*/image"
+        )
         try:
             _warm_up(bench, images, service)
             alone = phase(bench, images, SMALL, seconds)
