@@ -84,26 +84,37 @@ def test_the_service_s_tag_does_not_wait_for_a_look_that_cannot_change_it() -> N
 
 
 def test_large_frames_are_not_looked_at() -> None:
-    look = SecondLook((DICTIONARY,))
-    assert look.due((MAX_SIDE_PX + 1, 640), []) is None
-    assert look.due((MAX_SIDE_PX, 640), []) == NOW
+    assert SecondLook((DICTIONARY,)).due((MAX_SIDE_PX + 1, 640), []) is None
+    assert SecondLook((DICTIONARY,)).due((MAX_SIDE_PX, 640), []) == NOW
 
 
-def test_looks_on_the_first_frame_every_period_and_when_fewer_or_none_are_found() -> None:
+def _square(tag_id: int, side: float) -> Detection:
+    return Detection(tag_id, np.asarray([[0, 0], [side, 0], [side, side], [0, side]], np.float32))
+
+
+def test_looks_on_the_first_frame_every_period_and_when_fewer_are_found() -> None:
     look = SecondLook((DICTIONARY,))
-    small = Detection(1, np.asarray([[0, 0], [10, 0], [10, 10], [0, 10]], np.float32))
+    small, large = _square(1, 10), _square(2, 40)
     shape = (480, 640)
     looked = [look.due(shape, [small]) for _ in range(PERIOD + 1)]
     assert looked == [NOW] + [None] * (PERIOD - 1) + [NOW]
-    assert look.due(shape, []) == NOW  # none found
-    assert look.due(shape, [small]) is None  # one again, more than before
-    large = Detection(2, np.asarray([[0, 0], [40, 0], [40, 40], [0, 40]], np.float32))
-    assert look.due(shape, []) == NOW
-    assert look.due(shape, [large]) is None
-    assert look.due(shape, []) == NOW  # frame 2 * PERIOD - 3
+    assert look.due(shape, []) == NOW  # fewer than before
+    assert look.due(shape, []) is None  # none again: not fewer
     assert look.due(shape, [large, small]) is None
-    assert look.due(shape, [large, small]) is None
-    assert look.due(shape, [large, small]) == LATER  # due, but a larger marker is there
+    assert look.due(shape, [large]) == LATER  # fewer, but a larger marker is there
+
+
+def test_after_a_look_that_added_a_marker_the_next_frame_is_looked_at() -> None:
+    frame = _frame(SMALL)
+    look = SecondLook((DICTIONARY,))
+    detector = OpenCvDetector(DICTIONARY, second_look=look)
+    for _ in range(PERIOD):  # the first frame's look finds it, and each look after it
+        assert _ids(detector.detect(frame)) == [7]
+    assert look.counters == {"looks": PERIOD, "added": PERIOD}
+    blank = _frame()
+    assert detector.detect(blank) == []  # looked at: the look before added a marker
+    assert detector.detect(blank) == []  # that look added none: not looked at
+    assert look.counters["looks"] == PERIOD + 1
 
 
 def test_the_look_adds_nothing_the_default_read_found() -> None:

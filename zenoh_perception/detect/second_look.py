@@ -1,21 +1,24 @@
-"""A second look at a whole frame for markers too small for OpenCV's default read.
+"""A second look at a whole frame for markers OpenCV's default read misses.
 
-OpenCV's default parameters threshold the frame with windows of 3, 13 and 23 pixels; a marker
-of 8-24 px often has too few pixels per cell for any of them to separate its cells. Read at
-twice its size with the one window of :data:`WINDOW_PX`, the same frame gives OpenCV enough
-pixels: it finds markers there that its default read misses, with OpenCV still deciding
-every id (the caller's veto judges each one as it judges every other).
+OpenCV's default parameters threshold the frame with windows of 3, 13 and 23 pixels. A marker
+of 8-24 px often has too few pixels per cell for any of them to separate its cells, and a
+blurred one of any size too soft an edge. Read at twice its size with the one window of
+:data:`WINDOW_PX`, the same frame gives OpenCV what it needs for many of them: it finds markers
+there that its default read misses, with OpenCV still deciding every id (the caller's veto
+judges each one as it judges every other).
 
 The look costs about four default reads of the frame, so it is taken only where it can pay:
 
 - on frames up to :data:`MAX_SIDE_PX` a side (an HD720 frame read at 2x would cost several
   times a frame's budget);
 - on the stream's first frame and every :data:`PERIOD` frames after, when the default read
-  found nothing, or fewer markers than on the frame before (one may have shrunk from view).
+  found fewer markers than on the frame before (one may have left its reach), and on the
+  frame after a look that added a marker (to follow it while only the look reads it).
 
-The look keeps only small markers (mean side up to :data:`SMALL_SIDE_PX`). Where the default
-read found a larger one, the look can never find the closest marker, so it is taken
-:data:`LATER`: after the frame's tag is out, for the frame's other detections.
+Where the default read found a marker larger than :data:`SMALL_SIDE_PX` (mean side), the
+frame's tag goes to the closest marker that read found, without waiting: the look is then
+taken :data:`LATER`, after the tag is out, for the frame's other detections. Elsewhere it is
+taken :data:`NOW`, and what it finds may be the frame's tag.
 
 What it finds is merged where no marker of the same id is at that place. Pure: no Zenoh, no
 logging.
@@ -41,8 +44,8 @@ MAX_SIDE_PX: Final = 1000
 SCALE: Final = 2
 #: The one adaptive-threshold window of the look, pixels of the enlarged frame.
 WINDOW_PX: Final = 13
-#: The largest marker (mean side, frame pixels) the look keeps; a frame where the default read
-#: found a larger one is not looked at.
+#: A frame where the default read found a marker larger than this (mean side, frame pixels)
+#: has its tag without waiting for the look.
 SMALL_SIDE_PX: Final = 32.0
 #: Every how many frames the look is taken when nothing changed.
 PERIOD: Final = 8
@@ -66,6 +69,7 @@ class SecondLook:
             self._detector.setDictionaries([aruco_dictionary(d) for d in self._dictionaries])
         self._frames = 0
         self._previous = 0
+        self._added = False  # the last look added a marker
         self.counters: dict[str, int] = {"looks": 0, "added": 0}
 
     def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
@@ -74,8 +78,9 @@ class SecondLook:
         index, previous = self._frames, self._previous
         self._frames, self._previous = index + 1, len(found)
         if max(shape[:2]) > MAX_SIDE_PX:
+            self._added = False
             return None
-        if not (index % PERIOD == 0 or not found or len(found) < previous):
+        if not (index % PERIOD == 0 or len(found) < previous or self._added):
             return None
         if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
             return LATER
@@ -87,9 +92,10 @@ class SecondLook:
         found: list[Detection],
         keep: Callable[[npt.NDArray[np.float32]], bool] = lambda _: True,
     ) -> list[Detection]:
-        """``found`` and the small markers the enlarged ``image`` shows that no marker of
-        ``found`` is (same id, same place) and ``keep`` accepts (by their corners)."""
+        """``found`` and the markers the enlarged ``image`` shows that no marker of ``found``
+        is (same id, same place) and ``keep`` accepts (by their corners)."""
         self.counters["looks"] += 1
+        self._added = False
         height, width = image.shape[:2]
         big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
         if len(self._dictionaries) == 1:
@@ -103,9 +109,10 @@ class SecondLook:
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
             quad = (detection.corners + np.float32(0.5)) / np.float32(SCALE) - np.float32(0.5)
             small = Detection(detection.tag_id, quad, detection.dictionary)
-            if mean_side(quad) > SMALL_SIDE_PX or not keep(quad):
+            if not keep(quad):
                 continue
             if not any(same_marker(small, other) for other in merged):
                 merged.append(small)
                 self.counters["added"] += 1
+                self._added = True
         return merged
