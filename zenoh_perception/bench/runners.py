@@ -50,10 +50,11 @@ BEST: Final = "best"
 SHOWN: Final = ("opencv", BEST, "service")
 #: OpenCV's best setting: the most thorough ``DetectorParameters`` measured on the real corpus
 #: (docs/benchmarks.md, "Seeing more than OpenCV's default"), both replacements there at once:
-#: adaptive threshold windows 3..53 in steps of 4 (11 windows, the default reads 3 windows
+#: adaptive threshold windows 3..53 in steps of 4 (13 windows, the default reads 3 windows
 #: 3..23 in steps of 10) for markers under uneven light, and a minimum marker perimeter of 2 %
 #: of the image's larger side (default 3 %) for smaller markers. It is what a user tuning
-#: OpenCV for recall would pick; it costs about twice the default's time a frame.
+#: OpenCV for recall would pick; the two together cost about 3.5-4.5x the default's time a
+#: frame on the corpus (each alone about 2x).
 BEST_SETTING: Final[Mapping[str, float]] = {
     "adaptiveThreshWinSizeMin": 3,
     "adaptiveThreshWinSizeMax": 53,
