@@ -1,8 +1,10 @@
 """``bench --dataset``: labelled stills, sequences and videos, scored for OpenCV's default and
-the service's detector side by side (made-up items: the real corpus is not in CI)."""
+the service's detector side by side, OpenCV's best setting beside them (made-up items: the real
+corpus is not in CI)."""
 
 from __future__ import annotations
 
+import copy
 import gc
 import json
 import os
@@ -29,7 +31,9 @@ from zenoh_perception.bench.dataset import (
     load_manifest,
     nothing_found_hint,
 )
+from zenoh_perception.bench.goals import dataset_goals
 from zenoh_perception.bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
+from zenoh_perception.bench.runners import BEST, SHOWN, rotation
 from zenoh_perception.bench.scoring import BUCKETS, size_bucket
 from zenoh_perception.cli import main as cli
 from zenoh_perception.scene import render_markers
@@ -73,6 +77,57 @@ def test_every_item_is_scored_for_both_detectors(corpus: Path) -> None:
     # the negative's false id fails that goal; every other goal passes
     failed = [g["goal"] for g in report["goals"] if not g["pass"]]
     assert failed == ["negatives: false ids (service)"]
+
+
+def test_opencv_s_best_setting_is_scored_beside_them_and_not_judged(corpus: Path) -> None:
+    items = load_manifest(corpus / "manifest.json")
+    report = evaluate(items, corpus / "data", Settings())
+    rows = {(r["name"], r["dictionary"]): r for r in report["items"]}
+    for row in report["items"]:
+        assert set(SHOWN) <= set(row)
+        assert row[BEST]["frames"] == row["opencv"]["frames"] > 0, row["name"]
+        assert row[BEST]["mean_ms"] > 0.0
+    assert rows["two", "DICT_4X4_50"][BEST]["found"] == 2
+    assert rows["clip", "DICT_4X4_50"][BEST]["found"] == 8
+    # the negative's unlabelled marker: a false id for the best setting too
+    assert rows["n-empty", "DICT_4X4_50"][BEST]["false_ids"] == 1
+    for pooled in (*report["groups"].values(), *report["dictionaries"].values(), report["all"]):
+        assert set(pooled) == set(SHOWN)
+    assert report["groups"]["stills"][BEST]["found"] == 4
+    assert report["groups"]["videos"][BEST]["found"] == 14
+    assert report["all"][BEST]["frames"] == report["all"]["opencv"]["frames"]
+    # shown, not judged: the goals do not move when the best setting finds nothing at all
+    blind = copy.deepcopy({k: v for k, v in report.items() if k != "goals"})
+    for pooled in (*blind["groups"].values(), blind["all"], *blind["items"]):
+        pooled[BEST].update(found=0, false_ids=99, found_ids={})
+    assert dataset_goals(blind) == report["goals"]
+
+
+class _Recorder:
+    """A runner that finds nothing and says when it ran."""
+
+    def __init__(self, name: str, calls: list[str]) -> None:
+        self.name, self.calls = name, calls
+
+    def run(self, image: Any) -> tuple[list[Any], float]:
+        self.calls.append(self.name)
+        return [], 1.0
+
+
+def test_every_frame_goes_to_each_detector_in_rotating_order(
+    corpus: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[str] = []
+
+    def recorders(dictionary: str, settings: Settings, *, best: bool = False) -> dict[str, Any]:
+        assert best  # the dataset bench always runs OpenCV's best setting
+        return {who: _Recorder(who, calls) for who in SHOWN}
+
+    monkeypatch.setattr(dataset, "pair", recorders)
+    items = [i for i in load_manifest(corpus / "manifest.json") if i.name == "walk"]
+    evaluate(items, corpus / "data", Settings())
+    frames = [calls[k : k + len(SHOWN)] for k in range(0, len(calls), len(SHOWN))]
+    assert frames == [rotation(SHOWN, index) for index in range(6)]
 
 
 def test_a_video_is_read_up_to_max_frames(corpus: Path) -> None:

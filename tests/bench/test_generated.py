@@ -14,6 +14,8 @@ import pytest
 from tests.bench.conftest import QUICK_PLAN, BenchRun
 from zenoh_perception.bench import generated
 from zenoh_perception.bench.framesets import BOARD_SQUARES_QUICK, RESOLUTIONS, Plan
+from zenoh_perception.bench.reach import DISTANCES_M
+from zenoh_perception.bench.runners import BEST
 from zenoh_perception.bench.scoring import Tally
 from zenoh_perception.scene.boards import BOARD_KINDS
 
@@ -31,7 +33,7 @@ REPORT_KEYS = {
     "boards",
     "goals",
 }
-SET_KEYS = {"resolution", "video", "baseline", "tracking", "tracking_counters"}
+SET_KEYS = {"resolution", "video", "baseline", BEST, "tracking", "tracking_counters"}
 
 
 def test_the_exit_code_follows_the_goals(quick: BenchRun, quick_no_shm: BenchRun) -> None:
@@ -70,14 +72,17 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(quick: BenchRun) -
     }
     for name, entry in report["sets"].items():
         assert set(entry) == SET_KEYS, name
-        for who in ("baseline", "tracking"):
+        for who in ("baseline", BEST, "tracking"):
             summary = entry[who]
             assert set(summary) == SUMMARY_KEYS, (name, who)
             assert summary["frames"] > 0
             assert 0.0 < summary["median_ms"] <= summary["p99_ms"]
             assert 0.0 <= summary["recall"] <= 1.0
             assert summary["found"] <= summary["visible"]
-        assert entry["tracking"]["visible"] == entry["baseline"]["visible"]  # the same frames
+        # the same frames
+        assert entry["tracking"]["visible"] == entry["baseline"]["visible"]
+        assert entry[BEST]["visible"] == entry["baseline"]["visible"]
+        assert entry[BEST]["frames"] == entry["baseline"]["frames"]
         counters = entry["tracking_counters"]
         assert counters["frames"] == entry["tracking"]["frames"]
         assert 1 <= counters["scans"] <= counters["frames"]
@@ -90,6 +95,20 @@ def test_every_frame_set_has_both_detectors_with_sane_figures(quick: BenchRun) -
     assert report["sets"]["VGA"]["tracking"]["frames"] == quick_plan.frames
     # look-alikes fool OpenCV's detector, and so the service's, which it decides for
     assert report["sets"]["distractors"]["baseline"]["false_positives"] > 0
+
+
+def test_the_range_figure_has_each_detector(quick: BenchRun) -> None:
+    case = quick.report["range"]
+    names = ["opencv", BEST, "service"]
+    assert list(case["found_share"]) == list(case["range_m"]) == names
+    for name in names:
+        shares = case["found_share"][name]
+        assert list(shares) == [str(d) for d in DISTANCES_M]
+        assert all(0.0 <= share <= 1.0 for share in shares.values())
+        assert case["range_m"][name] in (0.0, *DISTANCES_M)
+    # a 20 cm tag at 2 m is about 90 px wide at HD720: every detector finds it
+    assert all(case["found_share"][name]["2.0"] == 1.0 for name in names)
+    assert case["frames_per_distance"] == QUICK_PLAN.range_frames
 
 
 def test_the_setup_says_how_the_camera_put_its_frames(

@@ -12,7 +12,7 @@ from tests.bench.conftest import BenchRun
 from zenoh_perception.bench.dataset import evaluate, load_manifest
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
 from zenoh_perception.bench.report import fmt, format_dataset_report, format_report, table
-from zenoh_perception.bench.runners import PAIR
+from zenoh_perception.bench.runners import BEST, PAIR, SHOWN
 from zenoh_perception.bench.scoring import size_bucket
 from zenoh_perception.settings import Settings
 
@@ -55,7 +55,7 @@ def test_every_set_and_detector_has_its_detection_row(quick: BenchRun) -> None:
     report = quick.report
     text = format_report(report)
     for name, entry in report["sets"].items():
-        for who in ("baseline", "tracking"):
+        for who in ("baseline", BEST, "tracking"):
             s = entry[who]
             assert row(text, name, who) == [
                 name,
@@ -131,8 +131,8 @@ def test_every_goal_has_its_row_and_verdict(quick: BenchRun) -> None:
         ]
 
 
-def _side(report_row: dict[str, Any], key: str) -> str:
-    return f"{report_row['opencv'][key]}/{report_row['service'][key]}"
+def _side(report_row: dict[str, Any], key: str, names: tuple[str, ...] = PAIR) -> str:
+    return "/".join(str(report_row[who][key]) for who in names)
 
 
 def test_the_dataset_report_has_a_row_per_group_item_and_goal(corpus: Path) -> None:
@@ -142,12 +142,20 @@ def test_the_dataset_report_has_a_row_per_group_item_and_goal(corpus: Path) -> N
     for name, group in [*report["groups"].items(), ("all", report["all"])]:
         cells = row(text, name)
         assert cells[1:3] == [str(group["opencv"]["frames"]), str(group["opencv"]["labelled"])]
-        # OpenCV's figure / the service's, side by side
-        assert cells[3] == _side(group, "found")
-        assert cells[5] == _side(group, "false_ids")
-        assert cells[6] == _side(group, "unverified")
+        # OpenCV's figure / its best setting's / the service's, side by side
+        assert cells[3] == _side(group, "found", SHOWN)
+        assert cells[5] == _side(group, "false_ids", SHOWN)
+        assert cells[6] == _side(group, "unverified", SHOWN)
+        assert cells[7] == "/".join(fmt(group[who]["mean_ms"]) for who in SHOWN)
     for name, entry in report["dictionaries"].items():
-        assert row(text, name)[5] == _side(entry, "false_ids")
+        assert row(text, name)[5] == _side(entry, "false_ids", SHOWN)
+        assert row(text, name)[7] == "/".join(fmt(entry[who]["mean_ms"]) for who in SHOWN)
+    # the headers say which figure is which
+    shown = r"found o/b/s +share o/b/s +false o/b/s +unverified o/b/s +ms o/b/s"
+    assert len(re.findall(shown, text)) == 2
+    assert "o/b/s = OpenCV default / OpenCV's best setting (windows 3-53 step 4, min" in text
+    # the items stay OpenCV's default / the service's
+    assert re.search(r"found o/s +share o/s +false o/s", text)
     for item in report["items"]:
         if item["negative"]:
             continue

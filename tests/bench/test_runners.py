@@ -1,22 +1,30 @@
-"""The two detectors side by side: same frames, order rotating, one tally each."""
+"""The detectors side by side: same frames, order rotating, one tally each."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import numpy.typing as npt
+import pytest
 
+from tests.bench.conftest import square
 from zenoh_perception.bench.framesets import Plan, board_frames
 from zenoh_perception.bench.runners import (
+    BEST,
+    BEST_SETTING,
     PAIR,
+    SHOWN,
     Baseline,
+    Best,
     Project,
     board_case,
     compare,
+    detector_parameters,
     pair,
     rotation,
 )
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
+from zenoh_perception.scene import CameraModel, Effects, SceneGenerator, render_markers
 from zenoh_perception.settings import Settings
 
 
@@ -83,3 +91,47 @@ def test_the_board_case_gives_each_detector_its_figures_frame_by_frame() -> None
             assert row[name]["found"] == row[name]["tags"] == 2 and row[name]["false"] == 0
     assert set(case["after_storm_ms"]) == set(PAIR)
     assert case["plain_frame_cost_ms"] > 0
+
+
+def test_the_best_setting_is_the_most_thorough_one_measured() -> None:
+    assert dict(BEST_SETTING) == {
+        "adaptiveThreshWinSizeMin": 3,
+        "adaptiveThreshWinSizeMax": 53,
+        "adaptiveThreshWinSizeStep": 4,
+        "minMarkerPerimeterRate": 0.02,
+    }
+    params = Best().parameters
+    assert (
+        params.adaptiveThreshWinSizeMin,
+        params.adaptiveThreshWinSizeMax,
+        params.adaptiveThreshWinSizeStep,
+    ) == (3, 53, 4)
+    assert params.minMarkerPerimeterRate == pytest.approx(0.02)
+    # everything else is OpenCV's default, as the baseline's parameters are
+    default, baseline = cv2.aruco.DetectorParameters(), Baseline().parameters
+    for key in ("minMarkerDistanceRate", "cornerRefinementMethod", "errorCorrectionRate"):
+        assert getattr(params, key) == getattr(default, key) == getattr(baseline, key)
+    assert baseline.adaptiveThreshWinSizeMax == default.adaptiveThreshWinSizeMax == 23
+    assert baseline.minMarkerPerimeterRate == pytest.approx(0.03)
+
+
+def test_a_parameter_opencv_does_not_have_is_refused() -> None:
+    with pytest.raises(AttributeError, match="adaptiveThreshWinSize"):
+        detector_parameters({"adaptiveThreshWinSize": 3})
+
+
+def test_the_best_setting_finds_a_tag_too_small_for_the_default() -> None:
+    # a 24 px tag: perimeter 96 px, under 3 % of the image's 4000 px side, over 2 %
+    image = render_markers(4000, 200, [(7, square(1000, 60, 24))])
+    assert Baseline().run(image)[0] == []
+    detections, ms = Best().run(image)
+    assert [d.tag_id for d in detections] == [7]
+    assert ms > 0.0
+
+
+def test_with_best_the_runners_are_opencv_s_default_its_best_setting_and_the_service() -> None:
+    runners = pair("DICT_4X4_50", Settings(), best=True)
+    assert tuple(runners) == SHOWN == ("opencv", BEST, "service")
+    assert isinstance(runners[BEST], Best)
+    assert type(runners["opencv"]) is Baseline
+    assert {k for k in SHOWN if k != BEST} == set(PAIR)

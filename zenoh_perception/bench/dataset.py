@@ -1,21 +1,24 @@
 """``zenoh-perception bench --dataset MANIFEST``: the service's detector against OpenCV's default
-detector on labelled pictures and videos (a camera's own, or the project's real corpus).
+detector, OpenCV's best setting shown beside, on labelled pictures and videos (a camera's own,
+or the project's real corpus).
 
 The manifest (``docs/dataset.md`` describes it; ``--init FOLDER`` writes one to fill in) names
 each item (a still, a video file or a sequence of frames), its dictionary and the ids a person
 read on it. Every frame, read one at a time, is turned into the BGRA image a camera delivers
-and run through the two
-:mod:`~zenoh_perception.bench.runners` of :data:`~zenoh_perception.bench.runners.PAIR`:
+and run through the three
+:mod:`~zenoh_perception.bench.runners` of :data:`~zenoh_perception.bench.runners.SHOWN`:
 
 - ``opencv``: OpenCV's default detector as a user would run it, timed with its conversion;
+- ``best``: the same with OpenCV's best setting measured
+  (:data:`~zenoh_perception.bench.runners.BEST_SETTING`), shown beside, not judged;
 - ``service``: the service's detector with the given settings (default settings unless told),
   as the service runs it (grey conversion included), one instance per stream: the stills of
   one dictionary form one stream, each video another.
 
 Each is scored against the labels (:class:`~zenoh_perception.bench.scoring.Score`; an item
 with no marker is a negative: every id on it is false, in every dictionary the manifest uses).
-On an item where neither found anything, OpenCV's default tries the other families and the
-flipped picture (:func:`nothing_found_hint`).
+On an item where neither OpenCV's default nor the service found anything, OpenCV's default
+tries the other families and the flipped picture (:func:`nothing_found_hint`).
 With ``--e2e`` each video also goes, frame by frame in lockstep, through service processes
 (``zenoh-perception run``, default and ``--detector opencv``) and through the transport floor
 (:mod:`~zenoh_perception.bench.e2e`), as one stream per video. The verdicts are
@@ -44,7 +47,7 @@ from zenoh_perception.bench.plot import plot_dataset
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.report import format_dataset_report
-from zenoh_perception.bench.runners import PAIR, Baseline, Runner, pair, rotation
+from zenoh_perception.bench.runners import PAIR, SHOWN, Baseline, Runner, pair, rotation
 from zenoh_perception.bench.scoring import Score, rounded
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import dictionary_name
@@ -380,14 +383,15 @@ def _stored_frames(item: Item, data: Path, max_frames: int, max_pixels: int) -> 
 
 @dataclass(slots=True)
 class _Streams:
-    """One runner pair per stream key (a dictionary's stills, or a video)."""
+    """One set of runners (:data:`SHOWN`) per stream key (a dictionary's stills, or a
+    video)."""
 
     settings: Settings
     runners: dict[str, dict[str, Runner]] = field(default_factory=dict)
 
     def pair(self, key: str, dictionary: str) -> dict[str, Runner]:
         if key not in self.runners:
-            self.runners[key] = pair(dictionary, self.settings)
+            self.runners[key] = pair(dictionary, self.settings, best=True)
         return self.runners[key]
 
 
@@ -402,9 +406,9 @@ def evaluate(
     progress: Progress | None = None,
     flags: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Run both detectors over every item; the JSON-ready report (see the module doc).
+    """Run the detectors over every item; the JSON-ready report (see the module doc).
 
-    Frames are read one at a time and dropped once both detectors saw them (with ``e2e``, a
+    Frames are read one at a time and dropped once every detector saw them (with ``e2e``, a
     video's frames are kept for its lockstep replay).
     """
     streams = _Streams(settings)
@@ -450,7 +454,7 @@ def _evaluate_item(
     rows: list[dict[str, Any]] = []
     videos = item.kind != "image"
     tested = dictionaries if item.negative else [item.dictionary]
-    scores = {d: {who: Score() for who in PAIR} for d in tested}
+    scores = {d: {who: Score() for who in SHOWN} for d in tested}
     kept: list[Image] | None = [] if e2e and videos and not item.negative else None
     first: Image | None = None
     for index, image in enumerate(
@@ -461,7 +465,7 @@ def _evaluate_item(
         for dictionary in tested:
             key = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
             runners = streams.pair(key, dictionary)
-            for who in rotation(PAIR, index):
+            for who in rotation(SHOWN, index):
                 detections, ms = runners[who].run(image)
                 scores[dictionary][who].add(item, detections, ms)
         if kept is not None:
@@ -563,9 +567,9 @@ def _end_to_end(
 
 
 def _pool(rows: Sequence[dict[str, Any]]) -> dict[str, Score]:
-    pooled = {who: Score() for who in PAIR}
+    pooled = {who: Score() for who in SHOWN}
     for row in rows:
-        for who in PAIR:
+        for who in SHOWN:
             pooled[who].extend(row[who])
     return pooled
 
@@ -600,7 +604,7 @@ def _report(
             "max_frame_pixels": settings.max_frame_pixels,
         },
         "max_video_frames": max_frames,
-        "items": [{**r, **{who: r[who].summary() for who in PAIR}} for r in rows],
+        "items": [{**r, **{who: r[who].summary() for who in SHOWN}} for r in rows],
         "groups": summaries(groups),
         "dictionaries": summaries(by_dictionary),
         "all": {who: s.summary() for who, s in everything.items()},

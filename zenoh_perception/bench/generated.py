@@ -1,12 +1,13 @@
 """``zenoh-perception bench``: the tracking detector against OpenCV's default, side by side, on
-generated frame sets.
+generated frame sets, OpenCV's best setting shown beside.
 
 The bench, top down:
 
 - :mod:`~zenoh_perception.bench.framesets`: the generated frames (exact ground truth) and how
   many (:class:`~zenoh_perception.bench.framesets.Plan`: full, or ``--quick``);
-- :mod:`~zenoh_perception.bench.runners`: OpenCV's default (``baseline``) and the ``tracking``
-  detector as the service runs it, on every frame, in one process;
+- :mod:`~zenoh_perception.bench.runners`: OpenCV's default (``baseline``), OpenCV's best
+  setting (``best``: shown, not judged) and the ``tracking`` detector as the service runs it,
+  on every frame, in one process;
 - :mod:`~zenoh_perception.bench.scoring`: per set and detector, median / p99 / mean time,
   recall, false positives, centre and distance error;
 - :mod:`~zenoh_perception.bench.e2e`: the independent HD720 frames and both drives end to end,
@@ -54,7 +55,15 @@ from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, Camera, sigte
 from zenoh_perception.bench.progress import Progress
 from zenoh_perception.bench.reach import DISTANCES_M, range_report
 from zenoh_perception.bench.report import format_report
-from zenoh_perception.bench.runners import DICTIONARY, Baseline, Project, board_case, compare
+from zenoh_perception.bench.runners import (
+    BEST,
+    DICTIONARY,
+    Baseline,
+    Best,
+    Project,
+    board_case,
+    compare,
+)
 from zenoh_perception.bench.scoring import rounded
 from zenoh_perception.bench.throughput import THROUGHPUT_HZ, measure_throughput
 from zenoh_perception.detect.tracking import tracking_counters
@@ -113,13 +122,14 @@ def _measure(plan: Plan, progress: Progress, *, with_e2e: bool, shm: bool) -> di
     }
     for frame_set in sets:
         project = Project()
-        baseline_tally, project_tally = compare(
-            frame_set.scenes, [Baseline(), project], progress, f"detect {frame_set.name}"
+        baseline_tally, best_tally, project_tally = compare(
+            frame_set.scenes, [Baseline(), Best(), project], progress, f"detect {frame_set.name}"
         )
         report["sets"][frame_set.name] = {
             "resolution": frame_set.resolution,
             "video": frame_set.video,
             "baseline": baseline_tally.summary(),
+            BEST: best_tally.summary(),
             "tracking": project_tally.summary(),
             "tracking_counters": tracking_counters(project.detector),
         }

@@ -2,7 +2,8 @@
 
 At each distance of :data:`DISTANCES_M`, ``frames`` HD720 frames of the scene generator with
 one 20 cm tag (random place, turned up to 30°, the generator's realistic effects) go to
-OpenCV's default and to the service's detector (the service's veto included). A distance is
+OpenCV's default, to OpenCV's best setting (shown, not judged) and to the service's detector
+(the service's veto included). A distance is
 reached when the tag is found in at least :data:`FOUND_SHARE` of its frames; the range is the
 furthest distance reached with every nearer one reached too.
 """
@@ -13,7 +14,7 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 from zenoh_perception.bench.progress import Progress, tick
-from zenoh_perception.bench.runners import DICTIONARY, Baseline, Project
+from zenoh_perception.bench.runners import BEST, DICTIONARY, Baseline, Best, Project, rotation
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
 
@@ -49,17 +50,18 @@ def range_report(
     scenes = SceneGenerator(CameraModel.named(RESOLUTION), seed=seed, effects=Effects.realistic())
     runners: dict[str, Baseline | Project] = {
         "opencv": Baseline(DICTIONARY),
+        BEST: Best(DICTIONARY),
         "service": Project(DICTIONARY, make_detector("opencv", DICTIONARY)),
     }
     shares: dict[str, dict[float, float]] = {name: {} for name in runners}
     for distance in distances:
         counts = dict.fromkeys(runners, 0)
-        for _ in range(frames):
+        for index in range(frames):
             scene = scenes.random_scene(
                 1, size_m=(TAG_M, TAG_M), distance_m=(distance, distance), max_tilt_deg=30.0
             )
-            for name, runner in runners.items():
-                ids = {d.tag_id for d in runner.run(scene.image)[0]}
+            for name in rotation(list(runners), index):
+                ids = {d.tag_id for d in runners[name].run(scene.image)[0]}
                 counts[name] += int(bool(set(scene.ids) & ids))
             tick(progress, "range")
         for name in runners:

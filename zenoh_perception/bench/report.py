@@ -6,13 +6,13 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
-from zenoh_perception.bench.runners import PAIR
+from zenoh_perception.bench.runners import BEST, BEST_SETTING, PAIR, SHOWN
 from zenoh_perception.bench.scoring import BUCKETS
 
 
 def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """Left-aligned columns under their headers and a rule."""
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(headers)]
+    widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(headers)]
     line = "  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True))
     out = [line, "  ".join("-" * w for w in widths)]
     out += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
@@ -35,6 +35,20 @@ def goals_table(goals: Sequence[dict[str, Any]], value: Callable[[Any], str]) ->
         for g in goals
     ]
     return "Goals\n" + table(["goal", "value", "threshold", "result", "note"], rows)
+
+
+def best_setting_text() -> str:
+    """OpenCV's best setting in a few words, for the reports' headers."""
+    windows = (
+        f"windows {BEST_SETTING['adaptiveThreshWinSizeMin']:g}-"
+        f"{BEST_SETTING['adaptiveThreshWinSizeMax']:g} step "
+        f"{BEST_SETTING['adaptiveThreshWinSizeStep']:g}"
+    )
+    return f"{windows}, min perimeter {BEST_SETTING['minMarkerPerimeterRate']:g}"
+
+
+def _best_words() -> str:
+    return f"OpenCV's best setting: {best_setting_text()}; shown, not judged"
 
 
 # -- the generated bench ---------------------------------------------------------------------
@@ -63,9 +77,11 @@ def _range(case: dict[str, Any]) -> str:
     rows.append(["range (90 % of frames)", *(f"{case['range_m'][n]:g} m" for n in names)])
     title = (
         f"A {case['tag_m'] * 100:g} cm DICT_4X4_50 tag at each distance, {case['resolution']}, "
-        f"{case['frames_per_distance']} frames each: share found\n"
+        f"{case['frames_per_distance']} frames each: share found"
     )
-    return title + table(["distance", *names], rows)
+    if BEST in names:
+        title += f" ({BEST} = {_best_words()})"
+    return title + "\n" + table(["distance", *names], rows)
 
 
 def _boards(case: dict[str, Any]) -> str:
@@ -133,7 +149,9 @@ def _boards(case: dict[str, Any]) -> str:
 def _detection(report: dict[str, Any]) -> str:
     rows = []
     for name, entry in report["sets"].items():
-        for who in ("baseline", "tracking"):
+        for who in ("baseline", BEST, "tracking"):
+            if who not in entry:  # a report made before OpenCV's best setting was run
+                continue
             s = entry[who]
             rows.append(
                 [
@@ -159,7 +177,10 @@ def _detection(report: dict[str, Any]) -> str:
         "centre px",
         "dist err %",
     ]
-    return "Detection (BGRA frame in, tags out; same frames, one process)\n" + table(headers, rows)
+    return (
+        "Detection (BGRA frame in, tags out; same frames, one process, order rotating;"
+        f" {BEST} = {_best_words()})\n" + table(headers, rows)
+    )
 
 
 def _end_to_end(report: dict[str, Any]) -> str:
@@ -270,7 +291,8 @@ def _throughput(runs: dict[str, Any]) -> str:
 
 def format_dataset_report(report: dict[str, Any]) -> str:
     """The labelled-dataset bench's tables: OpenCV's default and the service side by side
-    (``a/b`` is OpenCV's figure / the service's)."""
+    (``a/b`` is OpenCV's figure / the service's); in the totals and by dictionary OpenCV's
+    best setting between them (``a/b/c``)."""
     parts = [_totals(report), _dictionaries(report), _sizes(report), _items(report)]
     hints = _hints(report)
     if hints:
@@ -292,9 +314,9 @@ def _pct(summary: dict[str, Any]) -> str:
     return "-" if share is None else f"{100.0 * share:.1f}%"
 
 
-def _side(report_row: dict[str, Any], key: str) -> str:
-    """OpenCV's figure / the service's."""
-    return f"{report_row['opencv'][key]}/{report_row['service'][key]}"
+def _side(report_row: dict[str, Any], key: str, names: Sequence[str] = PAIR) -> str:
+    """The figures of ``names`` (default: OpenCV's / the service's), ``/`` between."""
+    return "/".join(str(report_row[who][key]) for who in names)
 
 
 def _ids(counts: dict[str, int]) -> str:
@@ -307,22 +329,32 @@ def _ids(counts: dict[str, int]) -> str:
     return "ids " + ", ".join(shown[:6]) + (", ..." if len(shown) > 6 else "")
 
 
-_SIDE_HEADERS = ["found", "share o/s", "false o/s", "unverified o/s", "ms o/s"]
+def _side_headers(names: Sequence[str] = PAIR) -> list[str]:
+    """The headers of :func:`_side_cells`: ``o/s``, or ``o/b/s`` with OpenCV's best setting."""
+    letters = "/".join(who[0] for who in names)
+    return [f"{what} {letters}" for what in ("found", "share", "false", "unverified", "ms")]
 
 
-def _side_cells(row: dict[str, Any]) -> list[str]:
+def _side_cells(row: dict[str, Any], names: Sequence[str] = PAIR) -> list[str]:
     return [
-        _side(row, "found"),
-        f"{_pct(row['opencv'])}/{_pct(row['service'])}",
-        _side(row, "false_ids"),
-        _side(row, "unverified"),
-        f"{fmt(row['opencv']['mean_ms'])}/{fmt(row['service']['mean_ms'])}",
+        _side(row, "found", names),
+        "/".join(_pct(row[who]) for who in names),
+        _side(row, "false_ids", names),
+        _side(row, "unverified", names),
+        "/".join(fmt(row[who]["mean_ms"]) for who in names),
     ]
+
+
+def _shown(group: dict[str, Any]) -> tuple[str, ...]:
+    """The detectors a report's group has: :data:`SHOWN`, or :data:`PAIR` in a report made
+    before OpenCV's best setting was run."""
+    return SHOWN if BEST in group else PAIR
 
 
 def _totals(report: dict[str, Any]) -> str:
     rows = []
     groups = {**report["groups"], "all": report["all"]}
+    names = _shown(report["all"])
     for name, group in groups.items():
         if group["opencv"]["frames"] == 0:
             continue
@@ -331,24 +363,32 @@ def _totals(report: dict[str, Any]) -> str:
                 name,
                 str(group["opencv"]["frames"]),
                 str(group["opencv"]["labelled"]),
-                *_side_cells(group),
+                *_side_cells(group, names),
             ]
         )
+    legend = (
+        f"o/b/s = OpenCV default / OpenCV's best setting ({best_setting_text()}; shown, not"
+        " judged) / service"
+        if names == SHOWN
+        else "o/s = OpenCV default / service"
+    )
     return (
-        "Totals (o/s = OpenCV default / service; found = labelled markers reported, on video"
+        f"Totals ({legend}; found = labelled markers reported, on video"
         " id-frames; false = ids the labels do not hold; unverified = ids of markers seen but"
         " not read; ms = mean per frame)\n"
-        + table(["group", "frames", "labelled", *_SIDE_HEADERS], rows)
+        + table(["group", "frames", "labelled", *_side_headers(names)], rows)
     )
 
 
 def _dictionaries(report: dict[str, Any]) -> str:
+    names = _shown(report["all"])
     rows = [
-        [name, str(d["opencv"]["frames"]), str(d["opencv"]["labelled"]), *_side_cells(d)]
+        [name, str(d["opencv"]["frames"]), str(d["opencv"]["labelled"]), *_side_cells(d, names)]
         for name, d in report["dictionaries"].items()
     ]
-    return "By dictionary (every item read in it, negatives included)\n" + table(
-        ["dictionary", "frames", "labelled", *_SIDE_HEADERS], rows
+    legend = "; o/b/s as in the totals" if names == SHOWN else ""
+    return f"By dictionary (every item read in it, negatives included{legend})\n" + table(
+        ["dictionary", "frames", "labelled", *_side_headers(names)], rows
     )
 
 
@@ -378,18 +418,19 @@ def negatives_merged(items: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         if not item["negative"]:
             out.append(item)
             continue
+        names = _shown(item)
         if item["name"] not in merged:
-            merged[item["name"]] = {**item, "dictionaries": 0, "times": {w: [] for w in PAIR}}
-            merged[item["name"]].update({w: dict(item[w]) for w in PAIR})
+            merged[item["name"]] = {**item, "dictionaries": 0, "times": {w: [] for w in names}}
+            merged[item["name"]].update({w: dict(item[w]) for w in names})
             out.append(merged[item["name"]])
-            for who in PAIR:
+            for who in names:
                 merged[item["name"]][who]["false_examples"] = {}
                 for key in ("false_ids", "unverified"):
                     merged[item["name"]][who][key] = 0
         entry = merged[item["name"]]
         entry["dictionaries"] += 1
         entry["dictionary"] = f"{entry['dictionaries']} dictionaries"
-        for who in PAIR:
+        for who in names:
             into, row = entry[who], item[who]
             into["false_ids"] += row["false_ids"]
             into["unverified"] += row["unverified"]
@@ -430,7 +471,7 @@ def _items(report: dict[str, Any]) -> str:
         "size",
         "frames",
         "labelled",
-        *_SIDE_HEADERS,
+        *_side_headers(),
         "missed (service)",
         "unexpected (opencv)",
         "unexpected (service)",

@@ -459,7 +459,8 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "bench",
         help="the service's detector against OpenCV's default, side by side",
         description="Generated frame sets by default; --dataset MANIFEST for labelled real "
-        "pictures and videos (see corpus/README.md). Exit code 1 when a goal fails.",
+        "pictures and videos (see corpus/README.md). OpenCV's best setting measured runs "
+        "beside them, shown but not judged. Exit code 1 when a goal fails.",
     )
     parser.add_argument("--quick", action="store_true", help="few frames (well under a minute)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the report as JSON")
