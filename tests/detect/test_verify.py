@@ -19,12 +19,16 @@ from zenoh_perception.detect.verify import (
     QUIET_MIN,
     REASONS,
     TYPICAL_QUIET,
+    Measures,
+    Thresholds,
     Verifier,
     _cell_stats,
     _layout,
     decision_margin,
     dictionary_codes,
+    measure,
     read_cells,
+    veto_reasons,
 )
 from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
 from zenoh_perception.scene import (
@@ -343,3 +347,49 @@ def test_pictograms_on_cardboard_are_vetoed_for_their_strokes() -> None:
     assert reported > 20
     assert kept_ids <= 0.25 * reported
     assert reasons["strokes"] > 0
+
+
+@pytest.mark.parametrize("dictionary", ["DICT_4X4_50", "DICT_ARUCO_ORIGINAL", "DICT_6X6_250"])
+def test_measures_under_the_constants_veto_as_check_does(dictionary: str) -> None:
+    # what tools/thresholds.py replays with other thresholds must be check's rules exactly
+    rng = np.random.default_rng(11)
+    opencv = OpenCvDetector(dictionary)
+    verifier = Verifier(dictionary)
+    images = [lookalike_frame(kind, dictionary, rng) for kind in ("keys", "text", "tiles")]
+    images += [true_tag_frame(dictionary, rng, side_px=(10.0, 40.0))[0] for _ in range(FRAMES)]
+    reasons: Counter[str | None] = Counter()
+    for image in images:
+        grey = _grey(image)
+        for detection in opencv.detect(grey):
+            measures = measure(grey, detection, dictionary)
+            replayed = veto_reasons(measures, Thresholds())
+            reason = verifier.check(grey, detection)
+            assert (replayed[0] if replayed else None) == reason
+            reasons[reason] += 1
+    assert reasons[None] > 0 and sum(reasons.values()) > reasons[None]  # kept and vetoed both
+
+
+def test_veto_reasons_follow_the_thresholds_given() -> None:
+    plain = Measures(
+        shortest_side_px=30.0,
+        cells_across=6,
+        quiet=0.2,
+        quiet_local=0.6,
+        border_light=0.1,
+        grid_ratio=1.0,
+        strokes=0.3,
+        margin=0.4,
+    )
+    assert veto_reasons(plain, Thresholds()) == ["margin"]
+    assert veto_reasons(plain, Thresholds(margin_min_bits=0.3)) == []
+    assert veto_reasons(plain, Thresholds(quiet_local_min=0.7, margin_min_bits=0.3)) == [
+        "quiet_zone"
+    ]
+    assert veto_reasons(plain, Thresholds(min_px_per_cell=6.0, strokes_max=0.2)) == [
+        "resolution",
+        "strokes",
+        "margin",
+    ]
+    assert veto_reasons(plain, Thresholds(strokes_max=0.2, strokes_min_px_per_cell=5.1)) == [
+        "margin"
+    ]

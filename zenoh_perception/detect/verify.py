@@ -489,12 +489,15 @@ def read_cells(
     marker_size: int,
     side_px: float | None = None,
     bits: Bits | None = None,
+    *,
+    local_always: bool = False,
 ) -> Reading:
     """Re-read the marker at ``corners`` (OpenCV's order) with ``marker_size`` inner cells a
     side, as a :class:`Reading` (``side_px``: the quad's mean side, when the caller has it;
     ``bits``: the code OpenCV read, 0/1 per inner cell row by row as
     :func:`dictionary_codes` gives it, which tells the white cells; without it, the cells
-    lighter than midway between the border and the lightest cell)."""
+    lighter than midway between the border and the lightest cell; ``local_always``: read
+    ``quiet_local`` whatever ``quiet`` is, for :func:`measure`)."""
     if side_px is None:
         side_px = sum(_sides(corners)) / 4
     layout = _layout(marker_size)
@@ -522,7 +525,7 @@ def read_cells(
     quiet = _median([(value - dark) / scale for value in ring]) if ring else 1.0
     white = np.asarray(code > split if bits is None else bits > 0.5, bool)
     quiet_local: float | None = None
-    if quiet < QUIET_MIN:
+    if quiet < QUIET_MIN or local_always:
         local = _local_quiet(grid, white, inside, layout)
         quiet_local = quiet if local is None else local
     border_light = len([value for value in border if (value - dark) / scale > 0.5]) / len(border)
@@ -758,3 +761,89 @@ class Verifier:
     def commit(self, kept: list[Detection]) -> None:
         """The frame's detections kept, for the next frame's :meth:`judge`."""
         self._kept = kept
+
+
+@dataclass(frozen=True, slots=True)
+class Measures:
+    """Every number a rule compares with its threshold, for one detection, each read whether or
+    not its rule would be consulted (for studying the thresholds: :func:`measure`)."""
+
+    shortest_side_px: float  # the quad's shortest side
+    cells_across: int  # inner cells and border a side (marker_size + 2)
+    quiet: float  # Reading.quiet
+    quiet_local: float  # Reading.quiet_local, read whatever ``quiet`` is
+    border_light: float
+    grid_ratio: float
+    strokes: float  # stroke_excess, whatever the pixels per cell
+    margin: float | None  # decision_margin; None where the rule never applies (see check)
+
+    @property
+    def px_per_cell(self) -> float:
+        """Pixels per cell along the shortest side (what ``resolution`` and ``strokes`` gate
+        on)."""
+        return self.shortest_side_px / self.cells_across
+
+
+@dataclass(frozen=True, slots=True)
+class Thresholds:
+    """The rules' thresholds; the defaults are the module's constants."""
+
+    min_px_per_cell: float = MIN_PX_PER_CELL
+    quiet_min: float = QUIET_MIN
+    quiet_max: float = QUIET_MAX
+    quiet_local_min: float = QUIET_LOCAL_MIN
+    border_light_max: float = BORDER_LIGHT_MAX
+    grid_ratio_max: float = GRID_RATIO_MAX
+    strokes_max: float = STROKES_MAX
+    strokes_min_px_per_cell: float = STROKES_MIN_PX_PER_CELL
+    margin_min_bits: float = MARGIN_MIN_BITS
+
+
+def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
+    """What every rule of :meth:`Verifier.check` measures on ``detection`` (read on the grid
+    of ``dictionary``, one predefined dictionary), all of it, whatever the thresholds."""
+    size = int(aruco_dictionary(dictionary).markerSize)
+    sides = _sides(detection.corners)
+    every = dictionary_codes(dictionary)
+    valid = 0 <= detection.tag_id < len(every) // 4
+    bits = every[4 * detection.tag_id] if valid else None
+    reading = read_cells(gray, detection.corners, size, sum(sides) / 4, bits, local_always=True)
+    assert reading.quiet_local is not None  # local_always
+    margin = None
+    if valid and min_distance(dictionary) > 1:
+        margin = decision_margin(reading.levels(), detection.tag_id, every)
+    return Measures(
+        shortest_side_px=min(sides),
+        cells_across=size + 2,
+        quiet=reading.quiet,
+        quiet_local=reading.quiet_local,
+        border_light=reading.border_light,
+        grid_ratio=reading.grid_ratio,
+        strokes=stroke_excess(reading),
+        margin=margin,
+    )
+
+
+def veto_reasons(measures: Measures, thresholds: Thresholds) -> list[str]:
+    """Every rule of :data:`REASONS` that vetoes a detection of ``measures`` under
+    ``thresholds``, in their order: :meth:`Verifier.check` with other thresholds (its reason
+    is the first, under the module's constants)."""
+    m, t = measures, thresholds
+    reasons: list[str] = []
+    if m.shortest_side_px < t.min_px_per_cell * m.cells_across:
+        reasons.append("resolution")
+    if m.quiet > t.quiet_max or (m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min):
+        reasons.append("quiet_zone")
+    if m.border_light > t.border_light_max:
+        reasons.append("border")
+    if m.grid_ratio > t.grid_ratio_max:
+        reasons.append("grid")
+    if (
+        m.shortest_side_px >= t.strokes_min_px_per_cell * m.cells_across
+        and m.strokes > t.strokes_max
+    ):
+        reasons.append("strokes")
+    typical = TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
+    if m.margin is not None and not typical and m.margin < t.margin_min_bits:
+        reasons.append("margin")
+    return reasons
