@@ -1,6 +1,6 @@
 """The veto's thresholds against the real corpus, split by repository.
 
-``python -m tools.thresholds [--dataset corpus/manifest.json] [--json PATH]``
+``python -m tools.thresholds [--dataset corpus/manifest.json] [--json PATH] [--records PATH]``
 
 Runs the service's detector (OpenCV's default proposals: the detector the default settings
 name, built by the package's factory, fed as the dataset bench feeds it) over every item of the
@@ -12,7 +12,9 @@ and the repository its item came from (the manifest's ``repo``).
 
 For every threshold (:data:`RULES`): its current value, the value at the nearest true tag on
 the whole corpus (each threshold with the others at their current values), the distance in
-the rule's units and as a ratio, and the false ids it vetoes (of which it alone).
+the rule's units and as a ratio, and the false ids it vetoes (of which no other rule's
+condition vetoes: "alone"; QUIET_MIN and QUIET_LOCAL_MIN form one condition, as STROKES_MAX
+and its gate do).
 
 Leave one repository out: for each repository R, every threshold is fitted on the true tags of
 the other repositories (:func:`fitted`: the nearest true tag there, times the ratio the current
@@ -20,7 +22,9 @@ constant keeps to the nearest true tag of the whole corpus), the whole veto is r
 fitted thresholds (:func:`replay`: as the service's verifier runs, a marker kept on a stream's
 frame before and seen again kept without being read), and R's frames are scored as
 ``bench --dataset`` scores them; the sums over R: true tags lost and false ids kept (all, and
-in DICT_4X4_50), beside the same with the current constants.
+in DICT_4X4_50), beside the same with the current constants and with a fit that keeps no
+margin (each threshold a hair beyond the training's nearest true tag): what the margin buys.
+Only R's reads are scored, and only they get the fitted thresholds.
 
 Exit status 0; 1 when the replay under the current constants disagrees with the service's
 verifier on a proposal (the study would then not be about the service's veto).
@@ -65,6 +69,8 @@ from zenoh_perception.wire.frames import Frame
 #: The dictionary whose false ids the study reports apart (the service's default).
 DEFAULT_DICTIONARY: Final = "DICT_4X4_50"
 CURRENT: Final = Thresholds()
+#: The fit without a margin puts a threshold this share beyond the nearest true tag.
+BARE_EPSILON: Final = 1e-9
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +82,9 @@ class Rule:
     field: str
     constant: str
     reason: str
+    #: the rule's condition this threshold is part of (two thresholds share one: QUIET_MIN
+    #: and QUIET_LOCAL_MIN, STROKES_MAX and its gate)
+    condition: str
     bound: Literal["upper", "lower"]
     #: The value this threshold is compared with on a detection, with the other thresholds
     #: at ``thresholds``; None when, with those, no value of this one vetoes the detection.
@@ -92,27 +101,44 @@ def _strokes_read(m: Measures, t: Thresholds) -> bool:
 
 #: Every threshold of verify.py's rules, in the order the rules are checked.
 RULES: Final = (
-    Rule("min_px_per_cell", "MIN_PX_PER_CELL", "resolution", "lower", lambda m, t: m.px_per_cell),
+    Rule(
+        "min_px_per_cell",
+        "MIN_PX_PER_CELL",
+        "resolution",
+        "resolution",
+        "lower",
+        lambda m, t: m.px_per_cell,
+    ),
     Rule(
         "quiet_min",
         "QUIET_MIN",
         "quiet_zone",
+        "quiet below",
         "lower",
         lambda m, t: m.quiet if m.quiet_local < t.quiet_local_min else None,
     ),
-    Rule("quiet_max", "QUIET_MAX", "quiet_zone", "upper", lambda m, t: m.quiet),
+    Rule("quiet_max", "QUIET_MAX", "quiet_zone", "quiet above", "upper", lambda m, t: m.quiet),
     Rule(
         "quiet_local_min",
         "QUIET_LOCAL_MIN",
         "quiet_zone",
+        "quiet below",
         "lower",
         lambda m, t: m.quiet_local if m.quiet < t.quiet_min else None,
     ),
-    Rule("border_light_max", "BORDER_LIGHT_MAX", "border", "upper", lambda m, t: m.border_light),
-    Rule("grid_ratio_max", "GRID_RATIO_MAX", "grid", "upper", lambda m, t: m.grid_ratio),
+    Rule(
+        "border_light_max",
+        "BORDER_LIGHT_MAX",
+        "border",
+        "border",
+        "upper",
+        lambda m, t: m.border_light,
+    ),
+    Rule("grid_ratio_max", "GRID_RATIO_MAX", "grid", "grid", "upper", lambda m, t: m.grid_ratio),
     Rule(
         "strokes_max",
         "STROKES_MAX",
+        "strokes",
         "strokes",
         "upper",
         lambda m, t: m.strokes if _strokes_read(m, t) else None,
@@ -121,12 +147,14 @@ RULES: Final = (
         "strokes_min_px_per_cell",
         "STROKES_MIN_PX_PER_CELL",
         "strokes",
+        "strokes",
         "upper",
         lambda m, t: m.px_per_cell if m.strokes > t.strokes_max else None,
     ),
     Rule(
         "margin_min_bits",
         "MARGIN_MIN_BITS",
+        "margin",
         "margin",
         "lower",
         lambda m, t: None if m.margin is None or _typical(m) else m.margin,
@@ -271,31 +299,45 @@ def nearest_true(
     return max(present) if rule.bound == "upper" else min(present)
 
 
-def fitted(current: float, nearest_all: float | None, nearest_train: float | None) -> float:
+def fitted(
+    current: float, nearest_all: float | None, nearest_train: float | None, *, margin: bool = True
+) -> float:
     """The fit: the training repositories' nearest true tag times the ratio the current
-    constant keeps to the whole corpus's nearest true tag (the same relative safety margin).
+    constant keeps to the whole corpus's nearest true tag (the same relative safety margin;
+    without ``margin``, the nearest true tag itself: the tightest value that keeps it).
     With no true tag reaching the rule on either, or a value not above 0 (a ratio is then
     meaningless), the current constant stays."""
     if nearest_all is None or nearest_train is None or nearest_all <= 0 or nearest_train <= 0:
         return current
+    if not margin:
+        return nearest_train
     if nearest_train == nearest_all:
         return current  # the same tag: the constant itself, not its product's rounding
     return current / nearest_all * nearest_train
 
 
 def fit(
-    proposals: Sequence[Proposal], nearest_all: dict[str, float | None], rules: Sequence[Rule]
+    proposals: Sequence[Proposal],
+    nearest_all: dict[str, float | None],
+    rules: Sequence[Rule],
+    *,
+    margin: bool = True,
 ) -> Thresholds:
     """Every threshold of ``rules`` fitted on ``proposals``' true tags (:func:`fitted`), each
     with the others at their current values."""
-    changes = {
-        rule.field: fitted(
+    changes = {}
+    for rule in rules:
+        value = fitted(
             float(getattr(CURRENT, rule.field)),
             nearest_all[rule.field],
             nearest_true(rule, proposals),
+            margin=margin,
         )
-        for rule in rules
-    }
+        if not margin and value != getattr(CURRENT, rule.field):
+            # a hair beyond the tag, on the keeping side: a rule that compares a product (the
+            # pixels per cell times the cells) or vetoes at its value (a gate) keeps it too
+            value *= 1.0 + BARE_EPSILON if rule.bound == "upper" else 1.0 - BARE_EPSILON
+        changes[rule.field] = value
     return _with(CURRENT, **changes)
 
 
@@ -356,6 +398,7 @@ class Held:
     opencv: Tally
     current: Tally
     fitted: Tally
+    bare: Tally  # fitted without the safety margin (the training's nearest true tags)
 
 
 def leave_one_out(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[Held]:
@@ -376,6 +419,7 @@ def leave_one_out(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[
             if getattr(limits, f.name) != getattr(CURRENT, f.name)
         }
         kept = replay(reads, limits, repo) if moved else now
+        bare = replay(reads, fit(train, nearest_all, rules, margin=False), repo)
         out.append(
             Held(
                 repo,
@@ -383,6 +427,7 @@ def leave_one_out(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[
                 tally(reads, everything, repo),
                 tally(reads, now, repo),
                 tally(reads, kept, repo),
+                tally(reads, bare, repo),
             )
         )
     return out
@@ -405,7 +450,7 @@ class RuleRow:
     ratio: float | None  # current / nearest_true
     true_reaching: int  # true tags this threshold can veto (with the others as they are)
     false_vetoed: int
-    false_alone: int  # false ids no other threshold vetoes
+    false_alone: int  # false ids no other rule's condition vetoes
     fitted_values: list[float] = field(default_factory=list)
 
 
@@ -413,7 +458,10 @@ def rule_rows(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[Rule
     """Each threshold's row on the whole corpus."""
     located = [(r.repo, p) for r in reads for p in r.proposals]
     false = [p for _, p in located if p.truth is False]
-    by_false = [{rule.field for rule in rules if vetoes(rule, p.measures, CURRENT)} for p in false]
+    # a false id's vetoing conditions (the two thresholds of one condition veto together)
+    by_false = [
+        {rule.condition for rule in rules if vetoes(rule, p.measures, CURRENT)} for p in false
+    ]
     rows = []
     for rule in rules:
         current = float(getattr(CURRENT, rule.field))
@@ -440,8 +488,8 @@ def rule_rows(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[Rule
                     for _, p in located
                     if p.truth is True and rule.value(p.measures, CURRENT) is not None
                 ),
-                false_vetoed=sum(1 for hit in by_false if rule.field in hit),
-                false_alone=sum(1 for hit in by_false if hit == {rule.field}),
+                false_vetoed=sum(1 for hit in by_false if rule.condition in hit),
+                false_alone=sum(1 for hit in by_false if hit == {rule.condition}),
             )
         )
     return rows
@@ -480,8 +528,10 @@ def format_report(
     opencv = Tally()
     current = Tally()
     fitted_sum = Tally()
+    bare = Tally()
     for h in held:
-        for total, part in ((opencv, h.opencv), (current, h.current), (fitted_sum, h.fitted)):
+        parts = ((opencv, h.opencv), (current, h.current), (fitted_sum, h.fitted), (bare, h.bare))
+        for total, part in parts:
             total.found += part.found
             total.false_ids += part.false_ids
             total.false_default += part.false_default
@@ -496,16 +546,18 @@ def format_report(
         f" | {current.false_default} |",
         f"| fitted without the held-out repository | {opencv.found - fitted_sum.found}"
         f" | {fitted_sum.false_ids} | {fitted_sum.false_default} |",
+        f"| the same with no safety margin (the training's nearest true tags)"
+        f" | {opencv.found - bare.found} | {bare.false_ids} | {bare.false_default} |",
     ]
-    moved = [h for h in held if h.moved]
+    moved = [h for h in held if h.moved or h.bare != h.current]
     if moved:
         lines += [
             "",
-            "Held-out repositories whose fit moved a threshold (the others' fit is the"
-            " current constants):",
+            "Held-out repositories where a fit differs from the constants (the others' fit with"
+            " the margin is the constants):",
             "",
-            "| held out | thresholds fitted without it | true lost: current / fitted"
-            " | false kept: current / fitted |",
+            "| held out | thresholds fitted without it | true lost: current / fitted / no margin"
+            " | false kept: current / fitted / no margin |",
             "|---|---|---|---|",
         ]
         for h in moved:
@@ -514,10 +566,11 @@ def format_report(
                 f"{names[k]} {_num(float(getattr(CURRENT, k)))} → {_num(v)}"
                 for k, v in h.moved.items()
             )
+            shown = shown or "the constants"
             lines.append(
                 f"| {h.repo} | {shown} | {h.opencv.found - h.current.found} /"
-                f" {h.opencv.found - h.fitted.found} | {h.current.false_ids} /"
-                f" {h.fitted.false_ids} |"
+                f" {h.opencv.found - h.fitted.found} / {h.opencv.found - h.bare.found}"
+                f" | {h.current.false_ids} / {h.fitted.false_ids} / {h.bare.false_ids} |"
             )
     return "\n".join(lines)
 
@@ -590,8 +643,11 @@ if __name__ == "__main__":
     )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args()
+    # the tool's classes from its module, not __main__, so that --records reads back anywhere
+    from tools import thresholds  # noqa: PLW0406
+
     sys.exit(
-        main(
+        thresholds.main(
             args.dataset,
             args.data,
             max_video_frames=args.max_video_frames,

@@ -66,6 +66,17 @@ def test_the_fit_keeps_the_constants_ratio_to_the_nearest_true_tag() -> None:
     assert fitted(2.5, 1.5, None) == 2.5
     assert fitted(0.35, 0.0, 0.1) == 0.35  # no ratio to a value of 0
     assert fitted(0.35, 0.25, -0.1) == 0.35
+    assert fitted(2.5, 1.5, 1.2, margin=False) == 1.2  # the tightest that keeps 1.2
+    assert fitted(2.5, None, 1.2, margin=False) == 2.5
+    everything = [
+        _proposal(1, True, shortest_side_px=7.0),
+        _proposal(1, True, shortest_side_px=8.0),
+    ]
+    nearest_all = {rule.field: nearest_true(rule, everything) for rule in RULES}
+    # a hair under 7 / 6 px a cell, which the product with the 6 cells might round past
+    limits = fit(everything, nearest_all, RULES, margin=False)
+    assert 7.0 / 6.0 * (1 - 1e-6) < limits.min_px_per_cell < 7.0 / 6.0
+    assert replay([_read("a", *everything)], limits) == [[True, True]]
 
 
 def test_the_nearest_true_tag_is_on_the_rules_veto_side_and_false_ids_do_not_count() -> None:
@@ -148,6 +159,10 @@ def test_leave_one_out_sums_what_each_held_out_repository_loses_and_keeps() -> N
     assert (held["b"].current.found, held["b"].fitted.found) == (1, 1)
     assert (held["b"].opencv.false_ids, held["b"].fitted.false_ids) == (1, 0)
     assert held["b"].opencv.false_default == 0  # read in DICT_6X6_250
+    # with no margin the bound is the training's nearest true tag: 1.0 without "a", 2.0
+    # without "b"; a's true tag and false id are then both lost, b's kept and vetoed
+    assert (held["a"].bare.found, held["a"].bare.false_ids) == (0, 0)
+    assert (held["b"].bare.found, held["b"].bare.false_ids) == (1, 0)
 
 
 def test_the_rule_rows_count_the_false_ids_each_threshold_vetoes_and_vetoes_alone() -> None:
@@ -168,6 +183,15 @@ def test_the_rule_rows_count_the_false_ids_each_threshold_vetoes_and_vetoes_alon
     assert (grid.false_vetoed, grid.false_alone) == (2, 1)
     assert (rows["BORDER_LIGHT_MAX"].false_vetoed, rows["BORDER_LIGHT_MAX"].false_alone) == (1, 0)
     assert rows["QUIET_LOCAL_MIN"].nearest_true is None
+
+
+def test_two_thresholds_of_one_condition_veto_together_and_count_alone() -> None:
+    dark: dict[str, Any] = {"quiet": 0.1, "quiet_local": 0.2}  # under both bounds
+    reads = [_read("a", _proposal(2, False, **dark), _proposal(3, False, grid_ratio=3.0, **dark))]
+    rows = {row.constant: row for row in rule_rows(reads)}
+    for name in ("QUIET_MIN", "QUIET_LOCAL_MIN"):
+        assert (rows[name].false_vetoed, rows[name].false_alone) == (2, 1)
+    assert (rows["GRID_RATIO_MAX"].false_vetoed, rows["GRID_RATIO_MAX"].false_alone) == (1, 0)
 
 
 def test_truth_is_the_label_or_unknown_beside_an_unread_marker() -> None:
