@@ -76,6 +76,9 @@ the inner cells lighter than midway between the border and the lightest cell.
 
 docs/benchmarks.md gives the distributions of these features on the true and false
 detections of the project's real corpus that set the thresholds, and what each rule removes.
+:func:`measure` reads every rule's number whatever the thresholds, and :func:`veto_reasons`
+gives the veto under other :class:`Thresholds`: what tools/thresholds.py fits the thresholds
+with, on some repositories of the corpus, and measures them with on the others.
 """
 
 from __future__ import annotations
@@ -152,7 +155,8 @@ class Reading:
     side_px: float  # mean side of the quad, pixels
     quiet: float  # median level of the quiet zone's cells inside the image
     # the same with each ring cell on the scale of the marker cells beside it (_local_quiet),
-    # read only when ``quiet`` is below QUIET_MIN (None otherwise): no rule looks at it then
+    # read only when ``quiet`` is below QUIET_MIN (None otherwise; read_cells' local_always
+    # reads it anyway): no rule looks at it then
     quiet_local: float | None
     contrast: float  # white cells' level minus the border's, grey levels
     border_light: float  # share of border cells nearer the white level than the border's
