@@ -2,8 +2,9 @@
 
 ``python -m tools.thresholds [--dataset corpus/manifest.json] [--json PATH] [--records PATH]``
 
-Runs the service's detector (OpenCV's default proposals: the detector the default settings
-name, built by the package's factory, fed as the dataset bench feeds it) over every item of the
+Runs the service's detector (OpenCV's default proposals, and the second look's where the
+settings take it: the detector the default settings name, built by the package's factory as
+the dataset bench builds it, fed as it feeds it) over every item of the
 manifest: stills, videos' frames as ``bench --dataset`` samples them, and each negative in every
 dictionary the manifest uses. Each proposal is *true* when its id is labelled on its frame and
 *false* when the frame holds no such id and no unread marker (else it is left out of the fit),
@@ -250,6 +251,7 @@ def collect(
                             settings.detector,
                             dictionary,
                             full_scan_period=settings.full_scan_period,
+                            second_look=settings.second_look,
                         )
                         finders[stream] = (
                             TagFinder(detector, settings.min_tag_side_px, None),
@@ -509,9 +511,10 @@ def format_report(
     true = sum(1 for p in proposals if p.truth is True)
     false = sum(1 for p in proposals if p.truth is False)
     lines = [
-        f"{len(proposals)} proposals of OpenCV's default on {len(reads)} reads (a frame in a"
-        f" dictionary) from {len({r.repo for r in reads})} repositories: {true} true, {false}"
-        f" false, {len(proposals) - true - false} unlabelled beside unread markers; replay under"
+        f"{len(proposals)} proposals of the service's detector (OpenCV's reads) on {len(reads)}"
+        f" reads (a frame in a dictionary) from {len({r.repo for r in reads})} repositories:"
+        f" {true} true, {false} false, {len(proposals) - true - false} unlabelled beside"
+        " unread markers; replay under"
         f" the constants differs from the service's verifier on {mismatches}.",
         "",
         "| threshold (rule) | vetoes | current | nearest true tag (repository) | distance"
