@@ -38,7 +38,7 @@ import json
 import pickle
 import sys
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Final, Literal
 
@@ -253,12 +253,22 @@ def collect(
                             full_scan_period=settings.full_scan_period,
                             second_look=settings.second_look,
                         )
+                        verifier = Verifier(dictionary)  # check() keeps no memory
                         finders[stream] = (
-                            TagFinder(detector, settings.min_tag_side_px, None),
-                            Verifier(dictionary),
+                            TagFinder(
+                                detector,
+                                settings.min_tag_side_px,
+                                verifier if settings.verify else None,
+                                settings.confirm_frames,
+                            ),
+                            verifier,
                         )
                     finder, verifier = finders[stream]
+                    # TagFinder.find up to its screen: the detector's read, then the second look
+                    # the service takes after the frame's tag, where it takes one
                     gray, found, _ = finder.detect(Frame(image, BGRA8, None, "tool", None))
+                    if finder.judges_one_by_one:
+                        found += finder.look_again()
                     if not found:
                         continue
                     before = last.get(stream)
@@ -453,7 +463,6 @@ class RuleRow:
     true_reaching: int  # true tags this threshold can veto (with the others as they are)
     false_vetoed: int
     false_alone: int  # false ids no other rule's condition vetoes
-    fitted_values: list[float] = field(default_factory=list)
 
 
 def rule_rows(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[RuleRow]:
