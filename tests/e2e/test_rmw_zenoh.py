@@ -145,6 +145,27 @@ def _service(endpoint: str, *extra: str) -> tuple[str, ...]:
     )
 
 
+def _camera_answered(
+    session: zenoh.Session, node: RosNode, entity_id: int, name: str, tag_id: int
+) -> tuple[Any, zenoh.Publisher]:
+    """A ROS publisher of ``/<name>/image`` (entity ``entity_id`` of ``node``) sends a frame of
+    marker ``tag_id``; the service answers on ``/<name>/tag`` and ``/<name>/perception/
+    detections``. The detection array, and the publisher (the caller undeclares it)."""
+    tags = Collector(session, topic_key(0, f"/{name}/tag", TAG, TAG_HASH))
+    arrays = Collector(session, topic_key(0, f"/{name}/perception/detections", DETECTIONS, "*"))
+    image_key, gid = node.entity(
+        entity_id, PUBLISHER, f"/{name}/image", IMAGE, ROS2_TYPE_HASHES[IMAGE]
+    )
+    publisher = session.declare_publisher(image_key, congestion_control=_BLOCK)
+    wait_for_subscriber(publisher)
+    cdr = encode_image_cdr(_marker_frame(tag_id), "bgra8", stamp_ns=1, frame_id=name)
+    publisher.put(bytes(cdr), attachment=Attachment(1, time.time_ns(), gid).encode())
+    assert TagCodec().decode(tags.get(timeout=30).payload).tag_id == tag_id
+    array: Any = TYPESTORE.deserialize_cdr(arrays.get(timeout=30).payload, DETECTIONS)
+    assert [d.id for d in array.detections] == [tag_id]
+    return array, publisher
+
+
 def _service_tokens(graph: GraphCache) -> dict[str, Token]:
     """The service's entities by mangled topic (and its node token under "NN")."""
     return {t.topic or t.kind: t for t in graph.of_node("zenoh_perception")}
@@ -374,22 +395,7 @@ def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node:
         wait_for_status(session)
         tf = Collector(session, topic_key(0, "/tf", "tf2_msgs/msg/TFMessage", "*"))
         for entity_id, (name, tag_id) in enumerate((("front", 3), ("rear", 9)), start=1):
-            tags = Collector(session, topic_key(0, f"/{name}/tag", TAG, TAG_HASH))
-            arrays = Collector(
-                session, topic_key(0, f"/{name}/perception/detections", DETECTIONS, "*")
-            )
-            image_key, gid = node.entity(
-                entity_id, PUBLISHER, f"/{name}/image", IMAGE, ROS2_TYPE_HASHES[IMAGE]
-            )
-            publisher = session.declare_publisher(image_key, congestion_control=_BLOCK)
-            wait_for_subscriber(publisher)
-            cdr = encode_image_cdr(_marker_frame(tag_id), "bgra8", stamp_ns=1, frame_id=name)
-            publisher.put(bytes(cdr), attachment=Attachment(1, time.time_ns(), gid).encode())
-            assert TagCodec().decode(tags.get(timeout=30).payload).tag_id == tag_id
-            array: Any = TYPESTORE.deserialize_cdr(
-                arrays.get(timeout=30).payload, "apriltag_msgs/msg/AprilTagDetectionArray"
-            )
-            assert [d.id for d in array.detections] == [tag_id]
+            array, _publisher = _camera_answered(session, node, entity_id, name, tag_id)
             assert array.header.frame_id == name
             transforms: Any = TYPESTORE.deserialize_cdr(
                 tf.get(timeout=30).payload, "tf2_msgs/msg/TFMessage"
@@ -458,20 +464,7 @@ def test_a_list_of_camera_topics_each_answer_in_their_own_namespace(
         assert "/zed/left/image" not in tokens
         records = Collector(session, "cams/*/perception/tags")
         for entity_id, (name, tag_id) in enumerate((("front", 3), ("rear", 9)), start=1):
-            tags = Collector(session, topic_key(0, f"/{name}/tag", TAG, TAG_HASH))
-            arrays = Collector(
-                session, topic_key(0, f"/{name}/perception/detections", DETECTIONS, "*")
-            )
-            image_key, gid = node.entity(
-                entity_id, PUBLISHER, f"/{name}/image", IMAGE, ROS2_TYPE_HASHES[IMAGE]
-            )
-            publisher = session.declare_publisher(image_key, congestion_control=_BLOCK)
-            wait_for_subscriber(publisher)
-            cdr = encode_image_cdr(_marker_frame(tag_id), "bgra8", stamp_ns=1, frame_id=name)
-            publisher.put(bytes(cdr), attachment=Attachment(1, time.time_ns(), gid).encode())
-            assert TagCodec().decode(tags.get(timeout=30).payload).tag_id == tag_id
-            array: Any = TYPESTORE.deserialize_cdr(arrays.get(timeout=30).payload, DETECTIONS)
-            assert [d.id for d in array.detections] == [tag_id]
+            _, publisher = _camera_answered(session, node, entity_id, name, tag_id)
             assert records.get(timeout=30).key == f"cams/{name}/perception/tags"
             publisher.undeclare()
         # each camera's outputs are topics of the node under the camera's name
