@@ -651,15 +651,12 @@ if __name__ == "__main__":
         default=None,
         metavar="PATH",
         help="the corpus's proposals kept here (pickle) and read back when it exists, to redo"
-        " the analysis without reading the corpus again",
+        " the analysis without reading the corpus again (by this command only)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = parser.parse_args()
-    # the tool's classes from its module, not __main__, so that --records reads back anywhere
-    from tools import thresholds  # noqa: PLW0406
-
     sys.exit(
-        thresholds.main(
+        main(
             args.dataset,
             args.data,
             max_video_frames=args.max_video_frames,
