@@ -181,8 +181,8 @@ class Settings:
     second_look: bool = field(
         default=True,
         metadata=_doc(
-            "read frames up to 1000 px a side again at 2x where only small tags (or none) were "
-            "found, for tags too small for OpenCV's default read"
+            "read frames up to 1000 px a side again at 2x, now and then, for tags OpenCV's "
+            "default read misses (small, blurred); beside a tag over 32 px, after the tag"
         ),
     )
     opencv_threads: int = field(
