@@ -136,7 +136,7 @@ class IntrinsicsError(PerceptionError):
 
 class ProcessingError(PerceptionError):
     """A decoded frame could not be turned into its outputs; ``stage`` says where it failed
-    (``detect``, ``encode_tag``, ``encode_record``, ``debug_image``)."""
+    (``detect``, ``encode_tag``, ``encode_record``, ``debug_image``, ``second_look``)."""
 
     reason = "processing_error"
 

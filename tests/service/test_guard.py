@@ -287,3 +287,46 @@ def test_the_look_after_the_tag_is_read_in_process_under_the_guard() -> None:
             guarded.look_again()
     finally:
         guarded.close()
+
+
+class _SlowLook(_Stalling):
+    """A detector whose look after the frame's tag stalls until RELEASE."""
+
+    def look_again(self) -> list[Detection]:
+        RELEASE.wait(60.0)
+        return []
+
+
+def _slow_look() -> _SlowLook:
+    return _SlowLook()
+
+
+def test_a_stalled_look_after_the_tag_is_abandoned_as_an_answered_frame() -> None:
+    RELEASE.clear()
+    guarded = GuardedDetector(_slow_look, 0.3, calm_s=0.5)
+    guarded.start()
+    try:
+        reader, _ = _stall(guarded)  # a read before the tag: the frame is not answered
+        assert not guarded.abandoned_answered
+        RELEASE.set()
+        reader.join(5.0)
+        wait_until(lambda: not guarded.in_child, timeout=10.0, what="in process again")
+        RELEASE.clear()
+        errors: list[BaseException] = []
+
+        def look() -> None:
+            try:
+                guarded.look_again()
+            except BaseException as err:  # kept for the test to look at
+                errors.append(err)
+
+        looker = threading.Thread(target=look, daemon=True)
+        looker.start()
+        wait_until(lambda: guarded.check() is not None, timeout=10.0, what="the look abandoned")
+        assert guarded.abandoned_answered
+        RELEASE.set()
+        looker.join(5.0)
+        assert [type(e) for e in errors] == [StaleDetection]
+    finally:
+        RELEASE.set()
+        guarded.close()

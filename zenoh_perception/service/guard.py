@@ -61,6 +61,8 @@ class _Read:
     thread: int  # threading.get_ident()
     native_id: int
     abandoned: bool = False
+    #: a read after the frame's tag was published (:meth:`GuardedDetector.look_again`)
+    answered: bool = False
 
 
 class GuardedDetector:
@@ -95,6 +97,8 @@ class GuardedDetector:
         self._lowered: list[_Read] = []  # those of them lowered to LOW_PRIORITY
         self._calm_at = 0.0  # monotonic time from which frames may be read in process again
         self._closing = False  # set by abandon(): no read starts any more
+        #: the read :meth:`check` abandoned last came after its frame's tag was published
+        self.abandoned_answered = False
 
     def start(self) -> None:
         """Start the child process and its spare, ready for the first stall."""
@@ -151,7 +155,9 @@ class GuardedDetector:
         later = getattr(self._local, "look_again", None)
         if later is None or self.in_child:
             return []
-        read = _Read(time.monotonic(), threading.get_ident(), threading.get_native_id())
+        read = _Read(
+            time.monotonic(), threading.get_ident(), threading.get_native_id(), answered=True
+        )
         with self._lock:
             if self._closing:
                 raise StaleDetection
@@ -181,6 +187,7 @@ class GuardedDetector:
             if read is None or now - read.started < self.deadline_s:
                 return None
             read.abandoned = True
+            self.abandoned_answered = read.answered
             self._read = None
             self._stuck += 1
             self._calm_at = now + self.calm_s

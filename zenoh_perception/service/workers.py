@@ -24,7 +24,12 @@ from typing import Final
 
 import zenoh
 
-from zenoh_perception.errors import FrameAbandonedError, SessionError, zenoh_error_text
+from zenoh_perception.errors import (
+    FrameAbandonedError,
+    ProcessingError,
+    SessionError,
+    zenoh_error_text,
+)
 from zenoh_perception.service.guard import StaleDetection
 from zenoh_perception.service.mailbox import Scheduler
 from zenoh_perception.service.stream import Arrival, Stream
@@ -123,7 +128,11 @@ class Workers:
                     continue
                 err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
                 stream.stats.on_abandoned(elapsed_ms)
-                stream.reject(err.reason, err)
+                if guard.abandoned_answered:
+                    # the second look after the frame's tag: answered, its record lost
+                    stream.processing_failed(ProcessingError("second_look", err))
+                else:
+                    stream.reject(err.reason, err)
                 self._abandoned.add(stream.worker)
                 self.start_one()
                 # the stuck worker ends on its own: the stream is free for the next frame
