@@ -362,6 +362,21 @@ def test_bad_ros_graph_settings_exit_2_naming_the_setting(
     assert named in result.stderr
 
 
+#: Each camera's outputs under its own name, as a ROS user lays them out.
+_PER_CAMERA = (
+    "--compressed-input-key",
+    "",
+    "--tag-key",
+    "{stream}/tag",
+    "--record-key",
+    "cams/{stream}/perception/tags",
+    "--debug-image-key",
+    "{stream}/perception/debug",
+    "--detections-key",
+    "{stream}/perception/detections",
+)
+
+
 def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node: RosNode) -> None:
     """A camera pattern ('*/image'): each camera's tag and detections under its own name
     ('/front/tag'), TF one topic whose transforms name each camera's frame."""
@@ -370,16 +385,7 @@ def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node:
     flags = (
         "--input-key",
         "*/image",
-        "--compressed-input-key",
-        "",
-        "--tag-key",
-        "{stream}/tag",
-        "--record-key",
-        "cams/{stream}/perception/tags",
-        "--debug-image-key",
-        "{stream}/perception/debug",
-        "--detections-key",
-        "{stream}/perception/detections",
+        *_PER_CAMERA,
         "--tag-size-m",
         "0.2",
         "--camera-fx",
@@ -437,16 +443,7 @@ def test_a_list_of_camera_topics_each_answer_in_their_own_namespace(
         "front/image",
         "--input-key",
         "rear/image",
-        "--compressed-input-key",
-        "",
-        "--tag-key",
-        "{stream}/tag",
-        "--record-key",
-        "cams/{stream}/perception/tags",
-        "--debug-image-key",
-        "{stream}/perception/debug",
-        "--detections-key",
-        "{stream}/perception/detections",
+        *_PER_CAMERA,
     )
     with running_cli(*_service(endpoint, *flags)):
         wait_for_status(session)
