@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
@@ -136,34 +137,32 @@ class GuardedDetector:
             except FrameAbandonedError:
                 self._calm_at = time.monotonic() + self.calm_s
                 raise
-        read = _Read(time.monotonic(), threading.get_ident(), threading.get_native_id())
         detector = self._local
-        with self._lock:
-            if self._closing:  # abandon() came between the check above and here
-                raise StaleDetection
-            self._read = read
-        try:
-            found = detector.detect(gray)
-        finally:
-            self._finish(read)
-        return found
+        return self._in_process(lambda: detector.detect(gray), answered=False)
 
     def look_again(self) -> list[Detection]:
         """What the in-process detector's second look adds to the frame it read last, where
         that look was left until after the frame's tag; read under the deadline as
-        :meth:`detect` is. None while frames go to the child: its look is not taken."""
+        :meth:`detect` is. [] while frames go to the child: its look is not taken."""
         later = getattr(self._local, "look_again", None)
         if later is None or self.in_child:
             return []
+        return self._in_process(later, answered=True)
+
+    def _in_process(
+        self, read_once: Callable[[], list[Detection]], *, answered: bool
+    ) -> list[Detection]:
+        """``read_once`` in the calling thread, as the read in flight that :meth:`check`
+        watches (``answered``: it comes after the frame's tag was published)."""
         read = _Read(
-            time.monotonic(), threading.get_ident(), threading.get_native_id(), answered=True
+            time.monotonic(), threading.get_ident(), threading.get_native_id(), answered=answered
         )
         with self._lock:
-            if self._closing:
+            if self._closing:  # abandon() came between the caller's check and here
                 raise StaleDetection
             self._read = read
         try:
-            found: list[Detection] = later()
+            found = read_once()
         finally:
             self._finish(read)
         return found
