@@ -39,7 +39,7 @@ import numpy.typing as npt
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.regions import same_marker
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import measure
+from zenoh_perception.detect.verify import read_detection
 from zenoh_perception.tags.geometry import mean_side
 
 #: Frames with a larger side are not looked at again.
@@ -119,7 +119,7 @@ class SecondLook:
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
             quad = (detection.corners + np.float32(0.5)) / np.float32(SCALE) - np.float32(0.5)
             small = Detection(detection.tag_id, quad, detection.dictionary)
-            if not keep(quad) or measure(image, small, small.dictionary).quiet < QUIET_MIN:
+            if not keep(quad) or read_detection(image, small, small.dictionary).quiet < QUIET_MIN:
                 continue
             if not any(same_marker(small, other) for other in merged):
                 merged.append(small)

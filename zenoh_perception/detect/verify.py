@@ -803,6 +803,18 @@ class Thresholds:
     margin_min_bits: float = MARGIN_MIN_BITS
 
 
+def read_detection(
+    gray: Gray, detection: Detection, dictionary: str, *, local_always: bool = False
+) -> Reading:
+    """:func:`read_cells` for ``detection`` on the grid of ``dictionary`` (one predefined
+    dictionary), its white cells those of the id OpenCV read."""
+    size = int(aruco_dictionary(dictionary).markerSize)
+    every = dictionary_codes(dictionary)
+    bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
+    side_px = sum(_sides(detection.corners)) / 4
+    return read_cells(gray, detection.corners, size, side_px, bits, local_always=local_always)
+
+
 def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
     """What every rule of :meth:`Verifier.check` measures on ``detection`` (read on the grid
     of ``dictionary``, one predefined dictionary), all of it, whatever the thresholds."""
@@ -810,8 +822,7 @@ def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
     sides = _sides(detection.corners)
     every = dictionary_codes(dictionary)
     valid = 0 <= detection.tag_id < len(every) // 4
-    bits = every[4 * detection.tag_id] if valid else None
-    reading = read_cells(gray, detection.corners, size, sum(sides) / 4, bits, local_always=True)
+    reading = read_detection(gray, detection, dictionary, local_always=True)
     assert reading.quiet_local is not None  # local_always
     margin = None
     if valid and min_distance(dictionary) > 1:
