@@ -384,7 +384,6 @@ def check_ros_package(name: str) -> str:
 #: Keys the service subscribes to: key expressions (wildcards allowed), each setting one key
 #: or a list of them.
 KEY_LISTS: Final = ("input_key", "compressed_input_key", "camera_info_key")
-_INPUT_KEYS: Final = KEY_LISTS
 #: The inputs of frames (each stream's).
 _FRAME_INPUTS: Final = ("input_key", "compressed_input_key")
 #: Keys the service publishes on or serves: concrete, never intersecting an input.
@@ -470,17 +469,17 @@ def _validate_keys(settings: Settings) -> None:
     if not settings.input_key and not settings.compressed_input_key:
         msg = "input_key and compressed_input_key are both empty: the service needs an input"
         raise SettingsError(msg)
-    for name in _INPUT_KEYS:
+    for name in KEY_LISTS:
         if any(STREAM in entry for entry in settings.entries(name)):
             msg = f"{name} = {_shown(getattr(settings, name))}: an input holds no {STREAM!r}"
             raise SettingsError(msg)
     # each entry of each input: (setting, entry, key expression)
     inputs = [
         (name, entry, _key_expr(name, entry))
-        for name in _INPUT_KEYS
+        for name in KEY_LISTS
         for entry in settings.entries(name)
     ]
-    for name in _INPUT_KEYS:
+    for name in KEY_LISTS:
         _validate_key_list(name, settings.entries(name))
     outputs: dict[str, zenoh.KeyExpr] = {}
     optional = tuple(name for name in _OPTIONAL_OUTPUT_KEYS if getattr(settings, name))

@@ -43,8 +43,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
 from zenoh_perception.detect.regions import Rect, around, inside, perimeter, same_marker, side
-from zenoh_perception.detect.second_look import SecondLook
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Looker
 from zenoh_perception.errors import SettingsError
 
 Gray = npt.NDArray[np.uint8]
@@ -137,7 +136,7 @@ class TrackingDetector:
         config: TrackingConfig | None = None,
         *,
         wary: bool = False,
-        second_look: SecondLook | None = None,
+        second_look: Looker | None = None,
     ) -> None:
         self.config = config if config is not None else TrackingConfig()
         # its whole-frame scans get the second look (frames in between are regions)
