@@ -166,6 +166,22 @@ def _camera_answered(
     return array, publisher
 
 
+def _cameras_subscribed(graph: GraphCache) -> dict[str, Token]:
+    """Wait until the service's node subscribes ``/front/image`` and ``/rear/image`` as a ROS
+    node does (kind, type and type hash); the node's tokens then."""
+    wait_until(
+        lambda: {"/front/image", "/rear/image"} <= set(_service_tokens(graph)),
+        timeout=30,
+        what="the cameras' subscription tokens",
+    )
+    tokens = _service_tokens(graph)
+    for name in ("front", "rear"):
+        token = tokens[f"/{name}/image"]
+        assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
+        assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]
+    return tokens
+
+
 def _service_tokens(graph: GraphCache) -> dict[str, Token]:
     """The service's entities by mangled topic (and its node token under "NN")."""
     return {t.topic or t.kind: t for t in graph.of_node("zenoh_perception")}
@@ -418,16 +434,7 @@ def test_several_cameras_each_answer_in_their_own_namespace(endpoint: str, node:
             what="the streams' publisher tokens",
         )
         # and the node subscribes each camera topic the pattern matched, as ROS tools list it
-        wait_until(
-            lambda: {"/front/image", "/rear/image"} <= set(_service_tokens(graph)),
-            timeout=30,
-            what="the cameras' subscription tokens",
-        )
-        tokens = _service_tokens(graph)
-        for name in ("front", "rear"):
-            token = tokens[f"/{name}/image"]
-            assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
-            assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]
+        _cameras_subscribed(graph)
 
 
 def test_a_list_of_camera_topics_each_answer_in_their_own_namespace(
@@ -448,17 +455,7 @@ def test_a_list_of_camera_topics_each_answer_in_their_own_namespace(
     with running_cli(*_service(endpoint, *flags)):
         wait_for_status(session)
         # each listed topic's subscription token is there from the start, no frame needed
-        wait_until(
-            lambda: {"/front/image", "/rear/image"} <= set(_service_tokens(graph)),
-            timeout=30,
-            what="the listed cameras' subscription tokens",
-        )
-        tokens = _service_tokens(graph)
-        for name in ("front", "rear"):
-            token = tokens[f"/{name}/image"]
-            assert (token.kind, token.dds_type) == (SUBSCRIPTION, "sensor_msgs::msg::dds_::Image_")
-            assert token.type_hash == ROS2_TYPE_HASHES[IMAGE]
-        assert "/zed/left/image" not in tokens
+        assert "/zed/left/image" not in _cameras_subscribed(graph)
         records = Collector(session, "cams/*/perception/tags")
         for entity_id, (name, tag_id) in enumerate((("front", 3), ("rear", 9)), start=1):
             _, publisher = _camera_answered(session, node, entity_id, name, tag_id)
