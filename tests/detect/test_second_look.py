@@ -5,10 +5,19 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import numpy.typing as npt
+import pytest
 
+from zenoh_perception.detect import second_look
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.second_look import LATER, MAX_SIDE_PX, NOW, PERIOD, SecondLook
+from zenoh_perception.detect.second_look import (
+    LATER,
+    MAX_CANDIDATES,
+    MAX_SIDE_PX,
+    NOW,
+    PERIOD,
+    SecondLook,
+)
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.scene.lookalikes import lookalike_frame
@@ -32,12 +41,17 @@ def _marker(tag_id: int, side_px: int) -> Gray:
     return np.asarray(cv2.resize(printed, (total, total), interpolation=cv2.INTER_AREA), np.uint8)
 
 
-def _frame(*markers: tuple[int, int, int, int], shape: tuple[int, int] = (480, 640)) -> Gray:
-    """A grey frame with markers (id, side px, x, y of the print's top-left)."""
+def _frame(
+    *markers: tuple[int, int, int, int], shape: tuple[int, int] = (480, 640), blur: float = 0.0
+) -> Gray:
+    """A grey frame with markers (id, side px, x, y of the print's top-left), each print
+    blurred by a Gaussian of ``blur`` px when given."""
     noise = np.random.default_rng(0).normal(0.0, 3.0, shape)
     frame = np.clip(120.0 + noise, 0, 255).astype(np.uint8)
     for tag_id, side_px, x, y in markers:
         print_ = _marker(tag_id, side_px)
+        if blur:
+            print_ = np.asarray(cv2.GaussianBlur(print_, (0, 0), blur), np.uint8)
         frame[y : y + print_.shape[0], x : x + print_.shape[1]] = print_
     return frame
 
@@ -83,9 +97,53 @@ def test_the_service_s_tag_does_not_wait_for_a_look_that_cannot_change_it() -> N
     assert analysis.selected.tag_id == 3
 
 
-def test_large_frames_are_not_looked_at() -> None:
-    assert SecondLook((DICTIONARY,)).due((MAX_SIDE_PX + 1, 640), []) is None
-    assert SecondLook((DICTIONARY,)).due((MAX_SIDE_PX, 640), []) == NOW
+HD720 = (720, 1280)
+# A far tag in an HD720 frame: 14 px and soft. OpenCV's default read rejects its quad (a cell
+# read wrong); read again enlarged, with the bit corrected, it is id 7.
+FAR = (7, 14, 600, 300)
+
+
+def test_larger_frames_are_looked_at_also_on_every_frame_where_nothing_was_found() -> None:
+    for shape, again in ((HD720, NOW), ((MAX_SIDE_PX, 640), None)):
+        look = SecondLook((DICTIONARY,))
+        assert look.due(shape, []) == NOW  # the first frame
+        assert look.due(shape, []) == again  # nothing found, as before
+
+
+def test_a_far_tag_in_a_large_frame_is_read_from_the_candidate_opencv_rejected() -> None:
+    frame = _frame(FAR, shape=HD720, blur=1.0)
+    assert OpenCvDetector(DICTIONARY).detect(frame) == []
+    look = SecondLook((DICTIONARY,))
+    found = OpenCvDetector(DICTIONARY, second_look=look).detect(frame)
+    assert _ids(found) == [7]
+    assert look.counters["candidates"] == 1
+    # in the frame's pixels: the centre of the print (23 px wide, the marker in its middle)
+    assert np.allclose(found[0].corners.mean(axis=0), (600 + 11, 300 + 11), atol=1.0)
+    tagged = _bgra(frame)
+    assert Pipeline(Settings()).process(tagged).selected.tag_id == 7
+    assert Pipeline(Settings(second_look=False)).process(tagged).selected.tag_id == -1
+
+
+def test_a_corrected_read_is_added_only_when_its_cells_read_its_id_clearly(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    frame = _frame(FAR, shape=HD720, blur=1.0)
+    monkeypatch.setattr(second_look, "CORRECTED_MARGIN_BITS", 8.0)  # more than any read has
+    look = SecondLook((DICTIONARY,))
+    assert OpenCvDetector(DICTIONARY, second_look=look).detect(frame) == []
+    assert look.counters == {"looks": 1, "candidates": 1, "added": 0}
+
+
+def test_only_the_candidates_most_like_a_marker_on_paper_are_read_again() -> None:
+    """Dark squares straight on the grey ground leave OpenCV candidates too; the tag's print,
+    light around its dark square, is read first however many there are."""
+    frame = _frame(FAR, shape=HD720, blur=1.0)
+    for index in range(3 * MAX_CANDIDATES):
+        x, y = 40 + 50 * (index % 24), 80 + 400 * (index // 24) + 40 * (index % 2)
+        frame[y : y + 16, x : x + 16] = 20
+    look = SecondLook((DICTIONARY,))
+    assert _ids(OpenCvDetector(DICTIONARY, second_look=look).detect(frame)) == [7]
+    assert look.counters["candidates"] == MAX_CANDIDATES
 
 
 def _square(tag_id: int, side: float) -> Detection:
@@ -110,7 +168,7 @@ def test_after_a_look_that_added_a_marker_the_next_frame_is_looked_at() -> None:
     detector = OpenCvDetector(DICTIONARY, second_look=look)
     for _ in range(PERIOD):  # the first frame's look finds it, and each look after it
         assert _ids(detector.detect(frame)) == [7]
-    assert look.counters == {"looks": PERIOD, "added": PERIOD}
+    assert look.counters == {"looks": PERIOD, "candidates": 0, "added": PERIOD}
     blank = _frame()
     assert detector.detect(blank) == []  # looked at: the look before added a marker
     assert detector.detect(blank) == []  # that look added none: not looked at
@@ -123,7 +181,7 @@ def test_the_look_adds_nothing_the_default_read_found() -> None:
     found = OpenCvDetector(DICTIONARY).detect(frame)
     assert _ids(found) == [7]
     assert look.look(frame, found) == found
-    assert look.counters == {"looks": 1, "added": 0}
+    assert look.counters == {"looks": 1, "candidates": 0, "added": 0}
 
 
 def test_the_detectors_take_it_by_default_and_leave_it_when_told() -> None:

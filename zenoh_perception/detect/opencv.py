@@ -97,14 +97,16 @@ class OpenCvDetector:
         #: a second read of small frames for markers too small for the default read (see
         #: detect/second_look.py); None: OpenCV's default read alone
         self.second_look = second_look
-        # the frame read last and what its read found, when its look comes after its tag
-        self._later: tuple[npt.NDArray[np.uint8], list[Detection]] | None = None
+        # the frame read last, what its read found and the candidates it rejected, when its
+        # look comes after its tag
+        self._later: tuple[npt.NDArray[np.uint8], list[Detection], Any] | None = None
+        self._rejected: Any = ()  # the candidates the last read rejected (OpenCV's quads)
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
         if len(self.dictionaries) == 1:
-            corners, ids, _rejected = self._detector.detectMarkers(image)
+            corners, ids, self._rejected = self._detector.detectMarkers(image)
             return detections_from_opencv(corners, ids, offset, self.dictionaries)
-        corners, ids, _rejected, indices = self._detector.detectMarkersMultiDict(image)
+        corners, ids, self._rejected, indices = self._detector.detectMarkersMultiDict(image)
         return detections_from_opencv(corners, ids, offset, self.dictionaries, indices)
 
     def detect(
@@ -126,9 +128,9 @@ class OpenCvDetector:
         if frame and look is not None:
             due = look.due(gray.shape, found)
             if due == "now":
-                found = look.look(image, found, self.grids.keep)
+                found = look.look(image, found, self.grids.keep, self._rejected)
             elif due == "later":
-                self._later = (image, found)
+                self._later = (image, found, self._rejected)
         return found
 
     def look_again(self) -> list[Detection]:
@@ -137,8 +139,8 @@ class OpenCvDetector:
         later, self._later = self._later, None
         if later is None or self.second_look is None:
             return []
-        image, found = later
-        return self.second_look.look(image, found, self.grids.keep)[len(found) :]
+        image, found, rejected = later
+        return self.second_look.look(image, found, self.grids.keep, rejected)[len(found) :]
 
     def detect_region(
         self,

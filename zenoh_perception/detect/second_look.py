@@ -1,19 +1,24 @@
-"""A second look at a whole frame for markers OpenCV's default read misses.
+"""A second look at a frame for markers OpenCV's default read misses.
 
-OpenCV's default parameters threshold the frame with windows of 3, 13 and 23 pixels. A marker
-of 8-24 px often has too few pixels per cell for any of them to separate its cells, and a
-blurred one of any size too soft an edge. Read at twice its size with the one window of
-:data:`WINDOW_PX`, the same frame gives OpenCV what it needs for many of them: it finds markers
-there that its default read misses, with OpenCV still deciding every id (the caller's veto
-judges each one as it judges every other).
+OpenCV's default parameters threshold the frame with windows of 3, 13 and 23 pixels and
+correct no bit of a small dictionary's code. A marker of 8-24 px often has too few pixels per
+cell for any window to separate its cells, or one cell read wrong, and a blurred one of any
+size too soft an edge. Read again at twice its size, the same pixels give OpenCV what it needs
+for many of them, with OpenCV still deciding every id (the caller's veto judges each one as it
+judges every other). The look reads:
 
-The look costs about four default reads of the frame, so it is taken only where it can pay:
-
-- on frames up to :data:`MAX_SIDE_PX` a side (an HD720 frame read at 2x would cost several
-  times a frame's budget);
-- on the stream's first frame and every :data:`PERIOD` frames after, when the default read
-  found fewer markers than on the frame before (one may have left its reach), and on the
-  frame after a look that added a marker (to follow it while only the look reads it).
+- **small frames** (up to :data:`MAX_SIDE_PX` a side) whole, at twice their size with the one
+  window of :data:`WINDOW_PX`. That costs about four default reads of the frame, so it is
+  taken on the stream's first frame and every :data:`PERIOD` frames after, when the default
+  read found fewer markers than on the frame before (one may have left its reach), and on the
+  frame after a look that added a marker (to follow it while only the look reads it);
+- **larger frames** (HD720 and up, where a whole read at 2x would cost several times a
+  frame's budget) only where the default read left a candidate: the quads OpenCV rejected,
+  :data:`CANDIDATE_SIDE_PX` a side, the :data:`MAX_CANDIDATES` most like a printed marker
+  (lighter around, dark and light inside), each cropped and read at twice its size with the
+  windows of :data:`CANDIDATE_WINDOWS` and every correctable bit corrected. That costs a
+  fraction of a frame's read, so it is also taken on every frame where the default read found
+  no marker (a far tag the rover is looking for).
 
 Where the default read found a marker larger than :data:`SMALL_SIDE_PX` (mean side), the
 frame's tag goes to the closest marker that read found, without waiting: the look is then
@@ -23,14 +28,16 @@ taken :data:`NOW`, and what it finds may be the frame's tag.
 What it finds is merged where no marker of the same id is at that place, and only where the
 light around the marker reads like a printed marker's margin (:data:`QUIET_MIN`): the look
 reads things the default read rightly passes over, and the generator's look-alikes it reads
-sit on darker surrounds than any true marker it added on the real corpus. Pure: no Zenoh, no
-logging.
+sit on darker surrounds than any true marker it added on the real corpus. A candidate read
+with corrected bits must also read as its id by a clear margin on the cells' own levels
+(:data:`CORRECTED_MARGIN_BITS`), whatever its surround.
+Pure: no Zenoh, no logging.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Final
+from typing import Any, Final
 
 import cv2
 import numpy as np
@@ -39,10 +46,17 @@ import numpy.typing as npt
 from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
 from zenoh_perception.detect.regions import same_marker
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import read_detection
+from zenoh_perception.detect.verify import (
+    Reading,
+    decision_margin,
+    dictionary_codes,
+    read_detection,
+)
 from zenoh_perception.tags.geometry import mean_side
 
-#: Frames with a larger side are not looked at again.
+Quad = npt.NDArray[np.float32]
+
+#: Frames with a larger side are looked at only where OpenCV rejected a candidate.
 MAX_SIDE_PX: Final = 1000
 #: How much larger the frame is read.
 SCALE: Final = 2
@@ -59,38 +73,92 @@ SMALL_SIDE_PX: Final = 32.0
 QUIET_MIN: Final = 0.7
 #: Every how many frames the look is taken when nothing changed.
 PERIOD: Final = 8
+#: The rejected candidates of a larger frame read again: mean side, frame pixels. Under 8 px
+#: the veto's resolution rule judges; over 32 px a marker has pixels enough a cell.
+CANDIDATE_SIDE_PX: Final = (8.0, 32.0)
+#: At most this many candidates of a frame are read again (a cluttered HD720 frame leaves
+#: 20-30 in that range; each read costs about 0.1 ms).
+MAX_CANDIDATES: Final = 8
+#: The candidates' adaptive-threshold windows: from, to, step (pixels of the enlarged crop).
+CANDIDATE_WINDOWS: Final = (7, 23, 8)
+#: The crop around a candidate: this many times its side each way from its centre, and 2 px.
+CROP_SIDES: Final = 1.2
+#: The least margin, in bits, by which a candidate read with corrected bits must read as its
+#: id on the cells' own levels (the veto asks 0.5 of a marker on a surround unlike paper): on
+#: generated HD720 frames at 8-16 m, the true tags the candidates added read 1.05 and up, the
+#: one wrong id they read 0.61.
+CORRECTED_MARGIN_BITS: Final = 1.0
 #: :meth:`SecondLook.due`: look before the frame's tag is chosen, or after it is out.
 NOW: Final = "now"
 LATER: Final = "later"
 
 
+def _reader(dictionaries: tuple[str, ...], params: cv2.aruco.DetectorParameters) -> Any:
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionaries[0]), params)
+    if len(dictionaries) > 1:
+        detector.setDictionaries([aruco_dictionary(d) for d in dictionaries])
+    return detector
+
+
+def _read(detector: Any, image: Any, names: tuple[str, ...]) -> list[Detection]:
+    if len(names) == 1:
+        corners, ids, _rejected = detector.detectMarkers(image)
+        return detections_from_opencv(corners, ids, (0, 0), names)
+    corners, ids, _rejected, indices = detector.detectMarkersMultiDict(image)
+    return detections_from_opencv(corners, ids, (0, 0), names, indices)
+
+
+def _likeness(image: npt.NDArray[np.uint8], quad: Quad, side: float) -> tuple[bool, float]:
+    """How much ``quad`` looks like a printed marker, for ranking candidates: whether the band
+    of about a cell around its box is lighter than the box's inside (paper around it), then
+    the spread of the grey levels inside (a marker's cells are dark and light; a plain dark
+    square, a hole or a shadow is even)."""
+    cell = max(1, round(side / 6))
+    x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+    x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
+    inner = image[max(0, y0 + cell) : max(0, y1 - cell), max(0, x0 + cell) : max(0, x1 - cell)]
+    box = image[max(0, y0) : y1, max(0, x0) : x1]
+    outer = image[max(0, y0 - cell) : y1 + cell, max(0, x0 - cell) : x1 + cell]
+    if inner.size == 0 or outer.size <= box.size:
+        return False, 0.0
+    ring = (float(outer.sum(dtype=np.int64)) - float(box.sum(dtype=np.int64))) / (
+        outer.size - box.size
+    )
+    return ring > float(inner.mean()), float(inner.std())
+
+
 class SecondLook:
     """The look of one stream (see the module documentation): :meth:`due` says whether and
-    when a frame gets it, :meth:`look` takes it. ``counters`` count frames looked at and
-    markers added."""
+    when a frame gets it, :meth:`look` takes it. ``counters`` count frames looked at,
+    candidates read again and markers added."""
 
     def __init__(self, dictionaries: Sequence[str]) -> None:
+        self._dictionaries = tuple(dictionaries)
         params = cv2.aruco.DetectorParameters()
         params.adaptiveThreshWinSizeMin = WINDOW_PX
         params.adaptiveThreshWinSizeMax = WINDOW_PX
-        self._dictionaries = tuple(dictionaries)
-        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(self._dictionaries[0]), params)
-        if len(self._dictionaries) > 1:
-            self._detector.setDictionaries([aruco_dictionary(d) for d in self._dictionaries])
+        self._detector = _reader(self._dictionaries, params)
+        params = cv2.aruco.DetectorParameters()
+        first, last, step = CANDIDATE_WINDOWS
+        params.adaptiveThreshWinSizeMin = first
+        params.adaptiveThreshWinSizeMax = last
+        params.adaptiveThreshWinSizeStep = step
+        params.errorCorrectionRate = 1.0  # every bit the dictionary can correct
+        params.minMarkerPerimeterRate = 0.5  # the crop is about 2.4 of its candidate's side
+        self._candidate_detector = _reader(self._dictionaries, params)
+        self._codes = {name: dictionary_codes(name) for name in self._dictionaries}
         self._frames = 0
         self._previous = 0
         self._added = False  # the last look added a marker
-        self.counters: dict[str, int] = {"looks": 0, "added": 0}
+        self.counters: dict[str, int] = {"looks": 0, "candidates": 0, "added": 0}
 
     def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
         """When the frame of ``shape`` whose default read found ``found`` gets the look:
         :data:`NOW`, :data:`LATER` or None (not at all); counts the frame."""
         index, previous = self._frames, self._previous
         self._frames, self._previous = index + 1, len(found)
-        if max(shape[:2]) > MAX_SIDE_PX:
-            self._added = False
-            return None
-        if not (index % PERIOD == 0 or len(found) < previous or self._added):
+        searching = max(shape[:2]) > MAX_SIDE_PX and not found
+        if not (index % PERIOD == 0 or len(found) < previous or self._added or searching):
             return None
         if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
             return LATER
@@ -100,29 +168,101 @@ class SecondLook:
         self,
         image: npt.NDArray[np.uint8],
         found: list[Detection],
-        keep: Callable[[npt.NDArray[np.float32]], bool] = lambda _: True,
+        keep: Callable[[Quad], bool] = lambda _: True,
+        rejected: Sequence[npt.NDArray[np.float32]] = (),
     ) -> list[Detection]:
-        """``found`` and the markers the enlarged ``image`` shows that no marker of ``found``
-        is (same id, same place) and ``keep`` accepts (by their corners)."""
+        """``found`` and the markers that no marker of ``found`` is (same id, same place) and
+        ``keep`` accepts (by their corners): on a small ``image``, those the whole image shows
+        enlarged; on a larger one, those its default read's ``rejected`` candidates show."""
         self.counters["looks"] += 1
         self._added = False
         height, width = image.shape[:2]
+        if max(height, width) > MAX_SIDE_PX:
+            return self._merge(image, found, self._candidates(image, found, rejected), keep)
         big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
-        if len(self._dictionaries) == 1:
-            corners, ids, _rejected = self._detector.detectMarkers(big)
-            more = detections_from_opencv(corners, ids, (0, 0), self._dictionaries)
-        else:
-            corners, ids, _rejected, indices = self._detector.detectMarkersMultiDict(big)
-            more = detections_from_opencv(corners, ids, (0, 0), self._dictionaries, indices)
-        merged = list(found)
-        for detection in more:
+        more = [
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
-            quad = (detection.corners + np.float32(0.5)) / np.float32(SCALE) - np.float32(0.5)
-            small = Detection(detection.tag_id, quad, detection.dictionary)
-            if not keep(quad) or read_detection(image, small, small.dictionary).quiet < QUIET_MIN:
+            Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary)
+            for d in _read(self._detector, big, self._dictionaries)
+        ]
+        return self._merge(image, found, [(d, False) for d in more], keep)
+
+    def _candidates(
+        self,
+        image: npt.NDArray[np.uint8],
+        found: list[Detection],
+        rejected: Sequence[npt.NDArray[np.float32]],
+    ) -> list[tuple[Detection, bool]]:
+        """What the most marker-like of ``rejected`` read as, cropped and enlarged."""
+        low, high = CANDIDATE_SIDE_PX
+        centres = [(d.corners.mean(axis=0), mean_side(d.corners)) for d in found]
+        ranked: list[tuple[tuple[bool, float], Quad, float]] = []
+        for candidate in rejected:
+            quad = np.asarray(candidate, np.float32).reshape(4, 2)
+            side = mean_side(quad)
+            centre = quad.mean(axis=0)
+            if not low <= side <= high or any(
+                float(np.linalg.norm(centre - c)) < max(side, s) for c, s in centres
+            ):
                 continue
-            if not any(same_marker(small, other) for other in merged):
-                merged.append(small)
-                self.counters["added"] += 1
-                self._added = True
+            ranked.append((_likeness(image, quad, side), quad, side))
+        ranked.sort(key=lambda r: r[0], reverse=True)
+        height, width = image.shape[:2]
+        more: list[tuple[Detection, bool]] = []
+        for _rank, quad, side in ranked[:MAX_CANDIDATES]:
+            self.counters["candidates"] += 1
+            reach = side * CROP_SIDES + 2
+            x0, y0 = np.maximum(np.floor(quad.mean(axis=0) - reach), 0).astype(int)
+            x1 = min(width, int(np.ceil(quad[:, 0].mean() + reach)) + 1)
+            y1 = min(height, int(np.ceil(quad[:, 1].mean() + reach)) + 1)
+            crop = image[y0:y1, x0:x1]
+            size = (crop.shape[1] * SCALE, crop.shape[0] * SCALE)
+            big = cv2.resize(crop, size, interpolation=cv2.INTER_LINEAR)
+            for d in _read(self._candidate_detector, big, self._dictionaries):
+                more.append((Detection(d.tag_id, _shrunk(d.corners, (x0, y0)), d.dictionary), True))
+        return more
+
+    def _merge(
+        self,
+        image: npt.NDArray[np.uint8],
+        found: list[Detection],
+        more: list[tuple[Detection, bool]],
+        keep: Callable[[Quad], bool],
+    ) -> list[Detection]:
+        """``found`` and each of ``more`` that is new, accepted by ``keep``, on a light margin
+        and, when its bits were corrected (its flag), read as its id by the veto's margin."""
+        merged = list(found)
+        for detection, corrected in more:
+            if not keep(detection.corners) or any(same_marker(detection, o) for o in merged):
+                continue
+            reading = read_detection(image, detection, detection.dictionary)
+            if reading.quiet < QUIET_MIN:
+                continue
+            codes = self._codes[detection.dictionary]
+            if corrected and (
+                not 0 <= detection.tag_id < len(codes) // 4
+                or decision_margin(reading.levels(), detection.tag_id, codes)
+                < CORRECTED_MARGIN_BITS
+            ):
+                continue
+            merged.append(detection)
+            self.counters["added"] += 1
+            self._added = True
         return merged
+
+    def _clear(self, reading: Reading, detection: Detection) -> bool:
+        """Whether ``detection``'s cells (``reading``) read as its id by
+        :data:`CORRECTED_MARGIN_BITS` against every other id of its dictionary."""
+        codes = self._codes[detection.dictionary]
+        if not 0 <= detection.tag_id < len(codes) // 4:
+            return False
+        margin = decision_margin(reading.levels(), detection.tag_id, codes)
+        return margin >= CORRECTED_MARGIN_BITS
+
+
+def _shrunk(corners: Quad, offset: tuple[int, int]) -> Quad:
+    """Corners read on an image enlarged :data:`SCALE` times, in the pixels of the image it
+    was enlarged from, shifted by ``offset`` (x, y): the centre of the enlarged pixel (x, y)
+    is the original's (x + 0.5) / SCALE - 0.5."""
+    shrunk = (corners + np.float32(0.5)) / np.float32(SCALE) - np.float32(0.5)
+    return np.asarray(shrunk + np.asarray(offset, np.float32), np.float32)

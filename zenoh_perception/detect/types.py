@@ -97,7 +97,7 @@ class Detector(Protocol):
 
 
 class Looker(Protocol):
-    """A second read of a whole frame after the detector's (see
+    """A second read of a frame after the detector's (see
     :class:`~zenoh_perception.detect.second_look.SecondLook`)."""
 
     def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
@@ -110,6 +110,8 @@ class Looker(Protocol):
         image: npt.NDArray[np.uint8],
         found: list[Detection],
         keep: Callable[[npt.NDArray[np.float32]], bool],
+        rejected: Sequence[npt.NDArray[np.float32]],
     ) -> list[Detection]:
-        """``found`` and what the second read adds to it (markers ``keep`` accepts)."""
+        """``found`` and what the second read adds to it (markers ``keep`` accepts), given
+        the candidates the first read ``rejected`` (OpenCV's quads)."""
         ...
