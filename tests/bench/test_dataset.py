@@ -177,6 +177,10 @@ def test_an_item_is_read_with_its_labels(tmp_path: Path) -> None:
     )
     assert not item.negative
     assert Item("n", "image", "DICT_4X4_50", {}).negative
+    raw = labelled("y", "sequence", {"1": 1, "4": 1}, in_view={"1": [[0, 2], [7, 9]]})
+    (item,) = load_manifest_from({"items": [raw]}, tmp_path)
+    assert item.in_view == {1: ((0, 2), (7, 9))}
+    assert item.frame(5).markers == {4: 1} and item.frame(5).out_of_view == {1}
 
 
 @pytest.mark.parametrize(
@@ -210,6 +214,22 @@ def test_an_item_is_read_with_its_labels(tmp_path: Path) -> None:
         (
             {"items": [labelled("a", "image", {}, conditions="dark")]},
             "item 0 (a): field conditions: must be a list",
+        ),
+        (
+            {"items": [labelled("a", "video", {"1": 1}, in_view={"2": [[0, 3]]})]},
+            "item 0 (a): field in_view: '2' is not one of the item's markers",
+        ),
+        (
+            {"items": [labelled("a", "video", {"1": 1}, in_view={"1": [[5, 3]]})]},
+            "item 0 (a): field in_view: id 1: a span ends before it begins",
+        ),
+        (
+            {"items": [labelled("a", "video", {"1": 1}, in_view={"1": [5]})]},
+            "item 0 (a): field in_view: id 1: must be [[first, last], ...]",
+        ),
+        (
+            {"items": [labelled("a", "image", {"1": 1}, in_view={"1": [[0, 0]]})]},
+            "item 0 (a): field in_view: only a video or a sequence",
         ),
         ({"items": []}, "no items"),
         ({"format": 2, "items": [labelled("a", "image", {})]}, "field format"),

@@ -114,3 +114,17 @@ def test_a_score_keeps_missed_ids_and_false_ids_by_size() -> None:
     assert pooled.missed == {3: 2, 7: 2}
     assert pooled.false_buckets[size_bucket(30.0)] == 2
     assert Score().summary()["share_found"] is None
+
+
+def test_a_video_s_markers_count_only_in_the_frames_they_are_whole_in() -> None:
+    item = Item("v", "video", "DICT_4X4_50", {3: 1, 7: 1}, in_view={7: ((2, 3),)})
+    s = Score()
+    for index in range(5):
+        s.add(item.frame(index), [_at(3, 100.0), _at(7, 100.0)], 1.0)
+    assert (s.labelled, s.found, s.false_ids, s.unverified) == (7, 7, 0, 3)
+    assert item.frame(0).markers == {3: 1} and item.frame(2).markers == {3: 1, 7: 1}
+    missed = Score()
+    for index in range(5):
+        missed.add(item.frame(index), [], 1.0)
+    assert missed.missed == {3: 5, 7: 2}
+    assert Item("s", "image", "DICT_4X4_50", {3: 1}).frame(4).markers == {3: 1}

@@ -44,6 +44,7 @@ CLEAN = Measures(
 class _Labels:
     markers: dict[int, int]
     unknown_markers: int = 0
+    out_of_view: frozenset[int] = frozenset()
 
 
 def _proposal(

@@ -48,7 +48,7 @@ from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
 from zenoh_perception.bench.progress import Progress, tick
 from zenoh_perception.bench.report import format_dataset_report
 from zenoh_perception.bench.runners import PAIR, SHOWN, Baseline, Runner, pair, rotation
-from zenoh_perception.bench.scoring import Score, rounded
+from zenoh_perception.bench.scoring import Labels, Score, rounded
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.types import dictionary_name
 from zenoh_perception.errors import PerceptionError, SettingsError
@@ -94,10 +94,40 @@ class Item:
     camera: str = "unknown"
     conditions: tuple[str, ...] = ()
     mirrored: bool = False  # stored mirrored left to right by the capture software
+    #: a video's or sequence's frames (0-based, first and last included) in which a labelled
+    #: id is whole in the picture, by id; an id not listed is in every frame
+    in_view: dict[int, tuple[tuple[int, int], ...]] = field(default_factory=dict)
 
     @property
     def negative(self) -> bool:
         return not self.markers and self.unknown_markers == 0
+
+    @property
+    def out_of_view(self) -> frozenset[int]:
+        return frozenset()
+
+    def frame(self, index: int) -> Labels:
+        """The labels of the item's frame ``index``: its markers whole in that frame, and the
+        others as out of view (reported there, a marker cut by the border is neither found
+        nor false)."""
+        if not self.in_view:
+            return self
+        gone = frozenset(
+            tag
+            for tag, spans in self.in_view.items()
+            if not any(first <= index <= last for first, last in spans)
+        )
+        markers = {tag: count for tag, count in self.markers.items() if tag not in gone}
+        return FrameLabels(markers, self.unknown_markers, gone)
+
+
+@dataclass(frozen=True, slots=True)
+class FrameLabels:
+    """One frame's labels of a video whose markers come and go (:meth:`Item.frame`)."""
+
+    markers: dict[int, int]
+    unknown_markers: int
+    out_of_view: frozenset[int]
 
 
 def _shown(value: Any) -> str:
@@ -160,6 +190,28 @@ class _Fields:
             out[tag] = self.count(f"markers {key}", count, 1)
         return out
 
+    def in_view(self, markers: dict[int, int]) -> dict[int, tuple[tuple[int, int], ...]]:
+        value = self.raw.get("in_view", {})
+        shape = '{"<id>": [[first, last], ...]}: frames in which each labelled id is whole'
+        if not isinstance(value, dict):
+            raise self.fail("in_view", f"must be a table {shape}, not {_shown(value)}")
+        out: dict[int, tuple[tuple[int, int], ...]] = {}
+        for key, spans in value.items():
+            if not (key.isdecimal() and key.isascii() and int(key) in markers):
+                raise self.fail("in_view", f"{_shown(key)} is not one of the item's markers")
+            if not isinstance(spans, list) or not all(
+                isinstance(span, list) and len(span) == 2 for span in spans
+            ):
+                raise self.fail("in_view", f"id {key}: must be [[first, last], ...]")
+            pairs = tuple(
+                (self.count(f"in_view {key}", a, 0), self.count(f"in_view {key}", b, 0))
+                for a, b in spans
+            )
+            if any(a > b for a, b in pairs):
+                raise self.fail("in_view", f"id {key}: a span ends before it begins")
+            out[int(key)] = pairs
+        return out
+
 
 def _dictionary_size(name: str) -> int:
     return int(aruco_dictionary(name).bytesList.shape[0])
@@ -192,16 +244,21 @@ def _item(raw: Any, index: int) -> Item:
     conditions = raw.get("conditions", [])
     if not isinstance(conditions, list) or not all(isinstance(c, str) for c in conditions):
         raise fields.fail("conditions", f"must be a list of words, not {_shown(conditions)}")
+    markers = fields.markers(_dictionary_size(dictionary), dictionary)
+    in_view = fields.in_view(markers)
+    if in_view and kind == "image":
+        raise fields.fail("in_view", "only a video or a sequence has frames to list")
     return Item(
         name=name,
         kind=kind,
         dictionary=dictionary,
-        markers=fields.markers(_dictionary_size(dictionary), dictionary),
+        markers=markers,
         unknown_markers=fields.count("unknown_markers", raw.get("unknown_markers", 0), 0),
         unsure=fields.flag("unsure"),
         camera=fields.text("camera", "unknown"),
         conditions=tuple(conditions),
         mirrored=fields.flag("mirrored"),
+        in_view=in_view,
     )
 
 
@@ -467,7 +524,7 @@ def _evaluate_item(
             runners = streams.pair(key, dictionary)
             for who in rotation(SHOWN, index):
                 detections, ms = runners[who].run(image)
-                scores[dictionary][who].add(item, detections, ms)
+                scores[dictionary][who].add(item.frame(index), detections, ms)
         if kept is not None:
             kept.append(image)
     assert first is not None  # frames() raises on an item without any
@@ -555,7 +612,7 @@ def _end_to_end(
         score = Score()
         for seq in range(len(images)):
             record = run.records[name].get(seq)
-            score.add(item, record_detections(record), float(values[seq]))
+            score.add(item.frame(seq), record_detections(record), float(values[seq]))
         out[name] = {
             "median_ms": rounded(np.median(values)),
             "mean_ms": rounded(values.mean()),

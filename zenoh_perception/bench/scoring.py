@@ -164,6 +164,10 @@ class Labels(Protocol):
     def unknown_markers(self) -> int:
         """Markers seen but not read."""
 
+    @property
+    def out_of_view(self) -> frozenset[int]:
+        """Labelled ids out of the picture, or cut by its border, on this frame."""
+
 
 @dataclass(slots=True)
 class Score:
@@ -194,6 +198,8 @@ class Score:
                 self.found += 1
                 self.found_ids[detection.tag_id] += 1
                 self.buckets[size_bucket(mean_side(detection.corners))] += 1
+            elif detection.tag_id in labels.out_of_view:
+                self.unverified += 1  # a labelled marker cut by the border
             elif unknown > 0:
                 unknown -= 1
                 self.unverified += 1
