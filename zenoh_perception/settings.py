@@ -181,8 +181,10 @@ class Settings:
     second_look: bool = field(
         default=True,
         metadata=_doc(
-            "read frames up to 1000 px a side again at 2x, now and then, for tags OpenCV's "
-            "default read misses (small, blurred); beside a tag over 32 px, after the tag"
+            "look again for tags OpenCV's default read misses (small, blurred, a cell read "
+            "wrong): frames up to 1000 px a side at 2x now and then, and the small quads it "
+            "rejected, also on larger frames where it found none; beside a tag over 32 px, "
+            "after the tag"
         ),
     )
     opencv_threads: int = field(
