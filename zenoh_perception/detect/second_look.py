@@ -8,13 +8,12 @@ for many of them, with OpenCV still deciding every id (the caller's veto judges 
 judges every other). The look reads:
 
 - **small frames** (up to :data:`MAX_SIDE_PX` a side) whole, at twice their size with the one
-  window of :data:`WINDOW_PX`, and their candidates as below. That costs about four default
-  reads of the frame, so it is taken on the stream's first frame and every :data:`PERIOD`
-  frames after, when the default read found fewer markers than on the frame before (one may
-  have left its reach), and on the frame after a look that added a marker (to follow it while
-  only the look reads it);
+  window of :data:`WINDOW_PX`. That costs about four default reads of the frame, so it is
+  taken on the stream's first frame and every :data:`PERIOD` frames after, when the default
+  read found fewer markers than on the frame before (one may have left its reach), and on the
+  frame after a look that added a marker (to follow it while only the look reads it);
 - **larger frames** (HD720 and up, where a whole read at 2x would cost several times a
-  frame's budget) only where the default read left a candidate, the quads OpenCV rejected:
+  frame's budget) only where the default read left a candidate: the quads OpenCV rejected,
   :data:`CANDIDATE_SIDE_PX` a side, the :data:`MAX_CANDIDATES` most like a printed marker
   (lighter around, dark and light inside), each cropped and read at twice its size with the
   windows of :data:`CANDIDATE_WINDOWS` and every correctable bit corrected. That costs a
@@ -173,20 +172,20 @@ class SecondLook:
         rejected: Sequence[npt.NDArray[np.float32]] = (),
     ) -> list[Detection]:
         """``found`` and the markers that no marker of ``found`` is (same id, same place) and
-        ``keep`` accepts (by their corners): those its default read's ``rejected`` candidates
-        show enlarged, and on a small ``image`` those the whole image shows enlarged."""
+        ``keep`` accepts (by their corners): on a small ``image``, those the whole image shows
+        enlarged; on a larger one, those its default read's ``rejected`` candidates show."""
         self.counters["looks"] += 1
         self._added = False
         height, width = image.shape[:2]
-        merged = found
-        if max(height, width) <= MAX_SIDE_PX:
-            big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
-            whole = [
-                (Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary), False)
-                for d in _read(self._detector, big, self._dictionaries)
-            ]
-            merged = self._merge(image, merged, whole, keep)
-        return self._merge(image, merged, self._candidates(image, merged, rejected), keep)
+        if max(height, width) > MAX_SIDE_PX:
+            return self._merge(image, found, self._candidates(image, found, rejected), keep)
+        big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
+        more = [
+            # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
+            Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary)
+            for d in _read(self._detector, big, self._dictionaries)
+        ]
+        return self._merge(image, found, [(d, False) for d in more], keep)
 
     def _candidates(
         self,
