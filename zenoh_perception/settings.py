@@ -182,9 +182,8 @@ class Settings:
         default=True,
         metadata=_doc(
             "look again for tags OpenCV's default read misses (small, blurred, a cell read "
-            "wrong): frames up to 1000 px a side at 2x now and then, and the small quads it "
-            "rejected, also on larger frames where it found none; beside a tag over 32 px, "
-            "after the tag"
+            "wrong): frames up to 1000 px a side at 2x now and then, larger ones at the small "
+            "quads it rejected, also where it found none; beside a tag over 32 px, after the tag"
         ),
     )
     opencv_threads: int = field(

@@ -18,7 +18,8 @@ judges every other). The look reads:
   (lighter around, dark and light inside), each cropped and read at twice its size with the
   windows of :data:`CANDIDATE_WINDOWS` and every correctable bit corrected. That costs a
   fraction of a frame's read, so it is also taken on every frame where the default read found
-  no marker (a far tag the rover is looking for).
+  no marker (a far tag the rover is looking for). A small frame's candidates are left: read so
+  on the real corpus's small pictures, they gave look-alikes the veto keeps.
 
 Where the default read found a marker larger than :data:`SMALL_SIDE_PX` (mean side), the
 frame's tag goes to the closest marker that read found, without waiting: the look is then
