@@ -54,7 +54,9 @@ class Plan:
     e2e_passes: int = 3
     board_squares: tuple[int, ...] = BOARD_SQUARES
     busy_board_frames: int = 30  # sent at 5 Hz, a plain frame every tenth
-    range_frames: int = 20  # per distance of the range figure (bench.reach)
+    # per distance of the range figure (bench.reach): with 20, one draw more or less at a
+    # distance moved OpenCV's range by 1 m between seeds
+    range_frames: int = 60
 
     @classmethod
     def full(cls) -> Plan:
