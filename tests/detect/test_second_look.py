@@ -146,6 +146,24 @@ def test_a_small_frame_s_look_leaves_its_candidates() -> None:
     assert look.counters == {"looks": 1, "candidates": 0, "added": 1}
 
 
+def test_a_corrected_read_is_added_only_when_seen_nearly_face_on(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A far marker squeezed to 8 x 20 px (as if turned about 65° away): OpenCV's default read
+    rejects it, read again with a bit corrected it is id 7, but too foreshortened to trust."""
+    frame = _frame(shape=HD720)
+    print_ = cv2.resize(_marker(7, 60), (13, 33), interpolation=cv2.INTER_AREA)
+    frame[300:333, 600:613] = cv2.GaussianBlur(print_, (0, 0), 1.0)
+    assert OpenCvDetector(DICTIONARY).detect(frame) == []
+    look = SecondLook((DICTIONARY,))
+    assert OpenCvDetector(DICTIONARY, second_look=look).detect(frame) == []
+    assert look.counters["candidates"] >= 1
+    monkeypatch.setattr(second_look, "CORRECTED_MIN_SIDE_RATIO", 0.0)
+    assert _ids(
+        OpenCvDetector(DICTIONARY, second_look=SecondLook((DICTIONARY,))).detect(frame)
+    ) == [7]
+
+
 def test_only_the_candidates_most_like_a_marker_on_paper_are_read_again() -> None:
     """Dark squares straight on the grey ground leave OpenCV candidates too; the tag's print,
     light around its dark square, is read first however many there are."""

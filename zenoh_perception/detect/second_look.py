@@ -30,8 +30,9 @@ What it finds is merged where no marker of the same id is at that place, and onl
 light around the marker reads like a printed marker's margin (:data:`QUIET_MIN`): the look
 reads things the default read rightly passes over, and the generator's look-alikes it reads
 sit on darker surrounds than any true marker it added on the real corpus. A candidate read
-with corrected bits must also read as its id by a clear margin on the cells' own levels
-(:data:`CORRECTED_MARGIN_BITS`), whatever its surround.
+with corrected bits must also be seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`) and
+read as its id by a clear margin on the cells' own levels (:data:`CORRECTED_MARGIN_BITS`),
+whatever its surround.
 Pure: no Zenoh, no logging.
 """
 
@@ -89,6 +90,12 @@ CROP_SIDES: Final = 1.2
 #: generated HD720 frames at 8-16 m, the true tags the candidates added read 1.05 and up, the
 #: one wrong id they read 0.61.
 CORRECTED_MARGIN_BITS: Final = 1.0
+#: The least ratio of its shortest side to its longest of a marker read with corrected bits:
+#: one seen more than about 50° off face-on leaves its cells too few pixels across for a
+#: corrected read to be trusted. The true tags the candidates added on generated HD720 (turned
+#: up to 30°) are 0.70 and up; the look-alikes they read on a real carton photo, an outlined
+#: box in a label and a stroke of a printed character, 0.41 and 0.30.
+CORRECTED_MIN_SIDE_RATIO: Final = 0.6
 #: :meth:`SecondLook.due`: look before the frame's tag is chosen, or after it is out.
 NOW: Final = "now"
 LATER: Final = "later"
@@ -230,8 +237,8 @@ class SecondLook:
         more: list[tuple[Detection, bool]],
         keep: Callable[[Quad], bool],
     ) -> list[Detection]:
-        """``found`` and each of ``more`` that is new, accepted by ``keep``, on a light margin
-        and, when its bits were corrected (its flag), read as its id by the veto's margin."""
+        """``found`` and each of ``more`` that is new, accepted by ``keep`` and on a light
+        margin, and, when its bits were corrected (its flag), clear (:meth:`_clear`)."""
         merged = list(found)
         for detection, corrected in more:
             if not keep(detection.corners) or any(same_marker(detection, o) for o in merged):
@@ -239,12 +246,7 @@ class SecondLook:
             reading = read_detection(image, detection, detection.dictionary)
             if reading.quiet < QUIET_MIN:
                 continue
-            codes = self._codes[detection.dictionary]
-            if corrected and (
-                not 0 <= detection.tag_id < len(codes) // 4
-                or decision_margin(reading.levels(), detection.tag_id, codes)
-                < CORRECTED_MARGIN_BITS
-            ):
+            if corrected and not self._clear(reading, detection):
                 continue
             merged.append(detection)
             self.counters["added"] += 1
@@ -252,8 +254,13 @@ class SecondLook:
         return merged
 
     def _clear(self, reading: Reading, detection: Detection) -> bool:
-        """Whether ``detection``'s cells (``reading``) read as its id by
-        :data:`CORRECTED_MARGIN_BITS` against every other id of its dictionary."""
+        """Whether ``detection`` is seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`)
+        and its cells (``reading``) read as its id by :data:`CORRECTED_MARGIN_BITS` against
+        every other id of its dictionary."""
+        corners = detection.corners
+        sides = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
+        if float(sides.min()) < CORRECTED_MIN_SIDE_RATIO * float(sides.max()):
+            return False
         codes = self._codes[detection.dictionary]
         if not 0 <= detection.tag_id < len(codes) // 4:
             return False
