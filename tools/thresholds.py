@@ -96,6 +96,18 @@ def _typical(m: Measures) -> bool:
     return TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
 
 
+def _waived(m: Measures, t: Thresholds) -> bool:
+    return (
+        m.px_per_cell >= t.quiet_waiver_px_per_cell
+        and m.margin is not None
+        and m.margin >= t.quiet_waiver_bits
+    )
+
+
+def _dark_ring(m: Measures, t: Thresholds) -> bool:
+    return m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min
+
+
 def _strokes_read(m: Measures, t: Thresholds) -> bool:
     return m.shortest_side_px >= t.strokes_min_px_per_cell * m.cells_across
 
@@ -116,7 +128,7 @@ RULES: Final = (
         "quiet_zone",
         "quiet below",
         "lower",
-        lambda m, t: m.quiet if m.quiet_local < t.quiet_local_min else None,
+        lambda m, t: m.quiet if m.quiet_local < t.quiet_local_min and not _waived(m, t) else None,
     ),
     Rule("quiet_max", "QUIET_MAX", "quiet_zone", "quiet above", "upper", lambda m, t: m.quiet),
     Rule(
@@ -125,7 +137,29 @@ RULES: Final = (
         "quiet_zone",
         "quiet below",
         "lower",
-        lambda m, t: m.quiet_local if m.quiet < t.quiet_min else None,
+        lambda m, t: m.quiet_local if m.quiet < t.quiet_min and not _waived(m, t) else None,
+    ),
+    Rule(
+        "quiet_waiver_px_per_cell",
+        "QUIET_WAIVER_PX_PER_CELL",
+        "quiet_zone",
+        "quiet below",
+        "lower",
+        lambda m, t: (
+            m.px_per_cell
+            if _dark_ring(m, t) and m.margin is not None and m.margin >= t.quiet_waiver_bits
+            else None
+        ),
+    ),
+    Rule(
+        "quiet_waiver_bits",
+        "QUIET_WAIVER_BITS",
+        "quiet_zone",
+        "quiet below",
+        "lower",
+        lambda m, t: (
+            m.margin if _dark_ring(m, t) and m.px_per_cell >= t.quiet_waiver_px_per_cell else None
+        ),
     ),
     Rule(
         "border_light_max",

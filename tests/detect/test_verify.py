@@ -17,6 +17,7 @@ from zenoh_perception.detect.verify import (
     MARGIN_MIN_BITS,
     QUIET_LOCAL_MIN,
     QUIET_MIN,
+    QUIET_WAIVER_BITS,
     REASONS,
     TYPICAL_QUIET,
     Measures,
@@ -148,6 +149,41 @@ def test_a_marker_at_the_image_edge_is_read_without_its_missing_quiet_zone() -> 
     grey = _grey(image)[y0:, x0:]  # the frame cut at the marker's top-left corner
     detection = Detection(tag.tag_id, (tag.corners - (x0, y0)).astype(np.float32))
     assert Verifier("DICT_4X4_50").check(grey, detection) is None
+
+
+def _edge_printed(side_px: int) -> np.ndarray:
+    """A 5X5 marker printed almost to the edge of its sheet (a white margin of a 25th of its
+    side, a fifth of a cell) on dark bark-like ground, ``side_px`` wide."""
+    rng = np.random.default_rng(3)
+    ground = np.clip(rng.normal(45.0, 12.0, (3 * side_px, 3 * side_px)), 0, 255).astype(np.uint8)
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_5X5_50)
+    margin = max(2, side_px // 25)
+    sheet = cv2.copyMakeBorder(
+        cv2.aruco.generateImageMarker(dictionary, 0, side_px),
+        *(margin,) * 4,
+        cv2.BORDER_CONSTANT,
+        value=230,
+    )
+    start = side_px - margin
+    ground[start : start + sheet.shape[0], start : start + sheet.shape[1]] = np.maximum(sheet, 30)
+    return ground
+
+
+@pytest.mark.parametrize(
+    ("side_px", "kept"),
+    [(300, True), (70, False)],  # 300 px: 43 px a cell; 70 px: 10 px, a glyph's size
+)
+def test_a_large_clean_marker_without_a_light_margin_is_kept(side_px: int, kept: bool) -> None:
+    grey = _edge_printed(side_px)
+    (detection,) = OpenCvDetector("DICT_5X5_50").detect(grey)
+    measures = measure(grey, detection, "DICT_5X5_50")
+    assert measures.quiet < QUIET_MIN and measures.quiet_local < QUIET_LOCAL_MIN
+    assert measures.margin is not None and measures.margin >= QUIET_WAIVER_BITS
+    reason = Verifier("DICT_5X5_50").check(grey, detection)
+    assert reason == (None if kept else "quiet_zone")
+    assert veto_reasons(measures, Thresholds()) == ([] if kept else ["quiet_zone"])
+    waiverless = Thresholds(quiet_waiver_bits=99.0)
+    assert veto_reasons(measures, waiverless) == ["quiet_zone"]
 
 
 def test_with_several_dictionaries_each_detection_is_read_on_its_own_grid() -> None:

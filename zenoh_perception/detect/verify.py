@@ -26,7 +26,14 @@ its central half. On the scale from the border's median level (0) to the white c
   0.40, the real corpus's at most 0.30), while the striped tags it keeps read 0.65-1.0. Above
   QUIET_MAX no local reading helps: a marker in a shadow stripe with the paper round it lit
   reads like a dark window on a light wall (every white cell darker than the ring), so that
-  case is still vetoed;
+  case is still vetoed. Nor does the low side veto a large marker, :data:`QUIET_WAIVER_PX_PER_CELL`
+  pixels a cell or more, whose cells read as its id by :data:`QUIET_WAIVER_BITS` or more
+  against every other id of its dictionary: a marker printed to the edge of its sheet, or cut
+  out, on a dark ground (a 5X5 marker on a tree's bark: 0.33, locally 0.44, 145 px a cell,
+  6.9 bits). The dark patches the low side is for are small: every false id on the real
+  corpus has at most 12 px a cell (those the low side vetoes, 7 px and 1.65 bits), the
+  generator's key-caps, lettering and tiles at most 7.2 px (as clean codes: they are drawn
+  as codes);
 - ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
   border cells may be nearer the white level than the border's;
 - ``grid``: the quad read on the grids of the families with more cells (up to 7 inner cells
@@ -84,7 +91,7 @@ with, on some repositories of the corpus, and measures them with on the others.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cache
 from typing import Final
@@ -143,6 +150,12 @@ LOCAL_CONTRAST_MIN: Final = 16.0
 #: A quiet zone below QUIET_MIN still passes when its local level (each ring cell against the
 #: marker cells near it) is at least this: the marker lit, the paper around it in a shadow.
 QUIET_LOCAL_MIN: Final = 0.5
+#: A quiet zone below both still passes for a marker of at least QUIET_WAIVER_PX_PER_CELL
+#: pixels a cell along its shortest side whose cells read as its id by at least
+#: QUIET_WAIVER_BITS (:func:`decision_margin`, in a dictionary whose codes lie 2 bits apart or
+#: more): a large clean code printed without a light margin.
+QUIET_WAIVER_PX_PER_CELL: Final = 20.0
+QUIET_WAIVER_BITS: Final = 3.0
 #: How far (Chebyshev distance, cells) from an inner cell the white cells that set its local
 #: white level lie (its dark level: the dark cells next to it).
 LEVEL_WHITE_REACH: Final = 2
@@ -674,12 +687,18 @@ def stroke_excess(reading: Reading) -> float:
     return float(excess.max()) / max(contrast, 1.0) if excess.size else 0.0
 
 
-def veto_reason(reading: Reading) -> str | None:
+def veto_reason(reading: Reading, clean_code: Callable[[], bool] = lambda: False) -> str | None:
     """The first of :data:`REASONS` from the cells' levels that rejects ``reading``, or None
-    (the code's margin is checked apart, by :meth:`Verifier.check`)."""
+    (the code's margin is checked apart, by :meth:`Verifier.check`). ``clean_code``: whether
+    the marker is large and its cells read as its id by :data:`QUIET_WAIVER_BITS`, asked only
+    of a quiet zone dark on both scales."""
     if reading.quiet > QUIET_MAX:
         return "quiet_zone"
-    if reading.quiet_local is not None and reading.quiet_local < QUIET_LOCAL_MIN:
+    if (
+        reading.quiet_local is not None
+        and reading.quiet_local < QUIET_LOCAL_MIN
+        and not clean_code()
+    ):
         return "quiet_zone"  # below QUIET_MIN, on the whole marker's scale and on the local one
     if reading.border_light > BORDER_LIGHT_MAX:
         return "border"
@@ -718,7 +737,15 @@ class Verifier:
         every = self._all_codes[name]
         bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
         reading = read_cells(gray, detection.corners, size, sum(sides) / 4, bits)
-        reason = veto_reason(reading)
+        codes = self._codes.get(name)
+        valid = codes is not None and 0 <= detection.tag_id < len(codes) // 4
+
+        def clean_code() -> bool:
+            if codes is None or not valid or min(sides) < QUIET_WAIVER_PX_PER_CELL * (size + 2):
+                return False
+            return decision_margin(reading.levels(), detection.tag_id, codes) >= QUIET_WAIVER_BITS
+
+        reason = veto_reason(reading, clean_code)
         if reason is not None:
             return reason
         if (
@@ -726,8 +753,7 @@ class Verifier:
             and stroke_excess(reading) > STROKES_MAX
         ):
             return "strokes"
-        codes = self._codes.get(name)
-        if codes is None or not 0 <= detection.tag_id < len(codes) // 4:
+        if codes is None or not valid:
             return None  # no margin rule for this dictionary, or not one of its ids
         if TYPICAL_QUIET[0] <= reading.quiet <= TYPICAL_QUIET[1]:
             return None  # a printed marker's surround: a close call on the id stands
@@ -796,6 +822,8 @@ class Thresholds:
     quiet_min: float = QUIET_MIN
     quiet_max: float = QUIET_MAX
     quiet_local_min: float = QUIET_LOCAL_MIN
+    quiet_waiver_px_per_cell: float = QUIET_WAIVER_PX_PER_CELL
+    quiet_waiver_bits: float = QUIET_WAIVER_BITS
     border_light_max: float = BORDER_LIGHT_MAX
     grid_ratio_max: float = GRID_RATIO_MAX
     strokes_max: float = STROKES_MAX
@@ -847,7 +875,13 @@ def veto_reasons(measures: Measures, thresholds: Thresholds) -> list[str]:
     reasons: list[str] = []
     if m.shortest_side_px < t.min_px_per_cell * m.cells_across:
         reasons.append("resolution")
-    if m.quiet > t.quiet_max or (m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min):
+    waived = (
+        m.px_per_cell >= t.quiet_waiver_px_per_cell
+        and m.margin is not None
+        and m.margin >= t.quiet_waiver_bits
+    )
+    low = m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min and not waived
+    if m.quiet > t.quiet_max or low:
         reasons.append("quiet_zone")
     if m.border_light > t.border_light_max:
         reasons.append("border")
