@@ -171,7 +171,7 @@ def _edge_printed(side_px: int) -> np.ndarray:
 
 @pytest.mark.parametrize(
     ("side_px", "kept"),
-    [(300, True), (70, False)],  # 300 px: 43 px a cell; 70 px: 10 px, a glyph's size
+    [(500, True), (300, False)],  # 71 px a cell; 43 px, as the generator's dark-ground codes
 )
 def test_a_large_clean_marker_without_a_light_margin_is_kept(side_px: int, kept: bool) -> None:
     grey = _edge_printed(side_px)

@@ -30,10 +30,10 @@ its central half. On the scale from the border's median level (0) to the white c
   pixels a cell or more, whose cells read as its id by :data:`QUIET_WAIVER_BITS` or more
   against every other id of its dictionary: a marker printed to the edge of its sheet, or cut
   out, on a dark ground (a 5X5 marker on a tree's bark: 0.33, locally 0.44, 145 px a cell,
-  6.9 bits). The dark patches the low side is for are small: every false id on the real
-  corpus has at most 12 px a cell (those the low side vetoes, 7 px and 1.65 bits), the
-  generator's key-caps, lettering and tiles at most 7.2 px (as clean codes: they are drawn
-  as codes);
+  6.9 bits). The dark patches the low side is for are smaller: every false id on the real
+  corpus has at most 12 px a cell (those the low side vetoes, 7 px and 1.65 bits); the
+  generator draws codes on dark ground as look-alikes, clean to the last bit, up to 46 px a
+  cell in its HD1080 set;
 - ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
   border cells may be nearer the white level than the border's;
 - ``grid``: the quad read on the grids of the families with more cells (up to 7 inner cells
@@ -154,7 +154,7 @@ QUIET_LOCAL_MIN: Final = 0.5
 #: pixels a cell along its shortest side whose cells read as its id by at least
 #: QUIET_WAIVER_BITS (:func:`decision_margin`, in a dictionary whose codes lie 2 bits apart or
 #: more): a large clean code printed without a light margin.
-QUIET_WAIVER_PX_PER_CELL: Final = 20.0
+QUIET_WAIVER_PX_PER_CELL: Final = 60.0
 QUIET_WAIVER_BITS: Final = 3.0
 #: How far (Chebyshev distance, cells) from an inner cell the white cells that set its local
 #: white level lie (its dark level: the dark cells next to it).
