@@ -104,6 +104,7 @@ class Item:
 
     @property
     def out_of_view(self) -> frozenset[int]:
+        """None of the item's labelled ids is out of view (see :meth:`frame`)."""
         return frozenset()
 
     def frame(self, index: int) -> Labels:

@@ -102,6 +102,7 @@ LATER: Final = "later"
 
 
 def _reader(dictionaries: tuple[str, ...], params: cv2.aruco.DetectorParameters) -> Any:
+    """OpenCV's detector of ``dictionaries`` (the first, and the others too) with ``params``."""
     detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionaries[0]), params)
     if len(dictionaries) > 1:
         detector.setDictionaries([aruco_dictionary(d) for d in dictionaries])
@@ -109,6 +110,7 @@ def _reader(dictionaries: tuple[str, ...], params: cv2.aruco.DetectorParameters)
 
 
 def _read(detector: Any, image: Any, names: tuple[str, ...]) -> list[Detection]:
+    """What ``detector`` (of the dictionaries ``names``) reads on ``image``."""
     if len(names) == 1:
         corners, ids, _rejected = detector.detectMarkers(image)
         return detections_from_opencv(corners, ids, (0, 0), names)
