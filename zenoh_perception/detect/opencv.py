@@ -68,6 +68,28 @@ def detections_from_opencv(
     ]
 
 
+def aruco_detector(dictionaries: tuple[str, ...], params: cv2.aruco.DetectorParameters) -> Any:
+    """OpenCV's ``ArucoDetector`` of ``dictionaries`` (canonical names, one or more) with
+    ``params``."""
+    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionaries[0]), params)
+    if len(dictionaries) > 1:
+        detector.setDictionaries([aruco_dictionary(d) for d in dictionaries])
+    return detector
+
+
+def read_markers(
+    detector: Any, image: Any, dictionaries: tuple[str, ...], offset: tuple[int, int] = (0, 0)
+) -> tuple[list[Detection], Any]:
+    """What ``detector`` (made by :func:`aruco_detector` for ``dictionaries``) reads on
+    ``image`` (see :func:`detections_from_opencv` for ``offset``), and the candidates it
+    rejected (OpenCV's quads, in ``image``'s pixels)."""
+    if len(dictionaries) == 1:
+        corners, ids, rejected = detector.detectMarkers(image)
+        return detections_from_opencv(corners, ids, offset, dictionaries), rejected
+    corners, ids, rejected, indices = detector.detectMarkersMultiDict(image)
+    return detections_from_opencv(corners, ids, offset, dictionaries, indices), rejected
+
+
 class OpenCvDetector:
     """OpenCV's ArUco detector, with OpenCV's default parameters.
 
@@ -87,9 +109,7 @@ class OpenCvDetector:
         self._params = params
         self._min_perimeter_rate = float(params.minMarkerPerimeterRate)
         self.dictionaries = dictionary_names(dictionary)
-        self._detector = cv2.aruco.ArucoDetector(aruco_dictionary(self.dictionaries[0]), params)
-        if len(self.dictionaries) > 1:
-            self._detector.setDictionaries([aruco_dictionary(d) for d in self.dictionaries])
+        self._detector = aruco_detector(self.dictionaries, params)
         #: periodic grids (checkerboards, tiled floors) painted over before a whole-frame read
         #: once a read proved expensive (see detect/grids.py); from the first read when
         #: ``wary`` (a detector replacing one whose read stalled)
@@ -103,11 +123,8 @@ class OpenCvDetector:
         self._rejected: Any = ()  # the candidates the last read rejected (OpenCV's quads)
 
     def _detect(self, image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[Detection]:
-        if len(self.dictionaries) == 1:
-            corners, ids, self._rejected = self._detector.detectMarkers(image)
-            return detections_from_opencv(corners, ids, offset, self.dictionaries)
-        corners, ids, self._rejected, indices = self._detector.detectMarkersMultiDict(image)
-        return detections_from_opencv(corners, ids, offset, self.dictionaries, indices)
+        found, self._rejected = read_markers(self._detector, image, self.dictionaries, offset)
+        return found
 
     def detect(
         self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0, *, frame: bool = True

@@ -39,13 +39,13 @@ Pure: no Zenoh, no logging.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any, Final
+from typing import Final
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_opencv
+from zenoh_perception.detect.opencv import aruco_detector, read_markers
 from zenoh_perception.detect.regions import same_marker
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import (
@@ -101,23 +101,6 @@ NOW: Final = "now"
 LATER: Final = "later"
 
 
-def _reader(dictionaries: tuple[str, ...], params: cv2.aruco.DetectorParameters) -> Any:
-    """OpenCV's detector of ``dictionaries`` (the first, and the others too) with ``params``."""
-    detector = cv2.aruco.ArucoDetector(aruco_dictionary(dictionaries[0]), params)
-    if len(dictionaries) > 1:
-        detector.setDictionaries([aruco_dictionary(d) for d in dictionaries])
-    return detector
-
-
-def _read(detector: Any, image: Any, names: tuple[str, ...]) -> list[Detection]:
-    """What ``detector`` (of the dictionaries ``names``) reads on ``image``."""
-    if len(names) == 1:
-        corners, ids, _rejected = detector.detectMarkers(image)
-        return detections_from_opencv(corners, ids, (0, 0), names)
-    corners, ids, _rejected, indices = detector.detectMarkersMultiDict(image)
-    return detections_from_opencv(corners, ids, (0, 0), names, indices)
-
-
 def _likeness(image: npt.NDArray[np.uint8], quad: Quad, side: float) -> tuple[bool, float]:
     """How much ``quad`` looks like a printed marker, for ranking candidates: whether the band
     of about a cell around its box is lighter than the box's inside (paper around it), then
@@ -147,7 +130,7 @@ class SecondLook:
         params = cv2.aruco.DetectorParameters()
         params.adaptiveThreshWinSizeMin = WINDOW_PX
         params.adaptiveThreshWinSizeMax = WINDOW_PX
-        self._detector = _reader(self._dictionaries, params)
+        self._detector = aruco_detector(self._dictionaries, params)
         params = cv2.aruco.DetectorParameters()
         first, last, step = CANDIDATE_WINDOWS
         params.adaptiveThreshWinSizeMin = first
@@ -155,7 +138,7 @@ class SecondLook:
         params.adaptiveThreshWinSizeStep = step
         params.errorCorrectionRate = 1.0  # every bit the dictionary can correct
         params.minMarkerPerimeterRate = 0.5  # the crop is about 2.4 of its candidate's side
-        self._candidate_detector = _reader(self._dictionaries, params)
+        self._candidate_detector = aruco_detector(self._dictionaries, params)
         self._codes = {name: dictionary_codes(name) for name in self._dictionaries}
         self._frames = 0
         self._previous = 0
@@ -193,7 +176,7 @@ class SecondLook:
         more = [
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
             Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary)
-            for d in _read(self._detector, big, self._dictionaries)
+            for d in read_markers(self._detector, big, self._dictionaries)[0]
         ]
         return self._merge(image, found, [(d, False) for d in more], keep)
 
@@ -228,7 +211,7 @@ class SecondLook:
             crop = image[y0:y1, x0:x1]
             size = (crop.shape[1] * SCALE, crop.shape[0] * SCALE)
             big = cv2.resize(crop, size, interpolation=cv2.INTER_LINEAR)
-            for d in _read(self._candidate_detector, big, self._dictionaries):
+            for d in read_markers(self._candidate_detector, big, self._dictionaries)[0]:
                 more.append((Detection(d.tag_id, _shrunk(d.corners, (x0, y0)), d.dictionary), True))
         return more
 
