@@ -61,6 +61,7 @@ from zenoh_perception.detect.verify import (
     Thresholds,
     Verifier,
     measure,
+    quiet_waived,
     veto_reasons,
 )
 from zenoh_perception.pipeline import TagFinder
@@ -96,14 +97,6 @@ def _typical(m: Measures) -> bool:
     return TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
 
 
-def _waived(m: Measures, t: Thresholds) -> bool:
-    return (
-        m.px_per_cell >= t.quiet_waiver_px_per_cell
-        and m.margin is not None
-        and m.margin >= t.quiet_waiver_bits
-    )
-
-
 def _dark_ring(m: Measures, t: Thresholds) -> bool:
     return m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min
 
@@ -128,7 +121,9 @@ RULES: Final = (
         "quiet_zone",
         "quiet below",
         "lower",
-        lambda m, t: m.quiet if m.quiet_local < t.quiet_local_min and not _waived(m, t) else None,
+        lambda m, t: (
+            m.quiet if m.quiet_local < t.quiet_local_min and not quiet_waived(m, t) else None
+        ),
     ),
     Rule("quiet_max", "QUIET_MAX", "quiet_zone", "quiet above", "upper", lambda m, t: m.quiet),
     Rule(
@@ -137,7 +132,7 @@ RULES: Final = (
         "quiet_zone",
         "quiet below",
         "lower",
-        lambda m, t: m.quiet_local if m.quiet < t.quiet_min and not _waived(m, t) else None,
+        lambda m, t: m.quiet_local if m.quiet < t.quiet_min and not quiet_waived(m, t) else None,
     ),
     Rule(
         "quiet_waiver_px_per_cell",

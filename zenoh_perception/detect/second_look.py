@@ -52,6 +52,7 @@ from zenoh_perception.detect.verify import (
     Reading,
     decision_margin,
     dictionary_codes,
+    quad_sides,
     read_detection,
 )
 from zenoh_perception.tags.geometry import mean_side
@@ -242,9 +243,8 @@ class SecondLook:
         """Whether ``detection`` is seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`)
         and its cells (``reading``) read as its id by :data:`CORRECTED_MARGIN_BITS` against
         every other id of its dictionary."""
-        corners = detection.corners
-        sides = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
-        if float(sides.min()) < CORRECTED_MIN_SIDE_RATIO * float(sides.max()):
+        sides = quad_sides(detection.corners)
+        if min(sides) < CORRECTED_MIN_SIDE_RATIO * max(sides):
             return False
         codes = self._codes[detection.dictionary]
         if not 0 <= detection.tag_id < len(codes) // 4:

@@ -190,7 +190,7 @@ class Reading:
         return np.minimum(np.maximum(levels, 0.0, out=levels), 1.0, out=levels).astype(np.float32)
 
 
-def _sides(corners: npt.NDArray[np.float32]) -> list[float]:
+def quad_sides(corners: npt.NDArray[np.float32]) -> list[float]:
     """A quad's four sides, pixels, from the first corner to the second on."""
     first, second, third, fourth = corners.reshape(4, 2).tolist()
     return [
@@ -516,7 +516,7 @@ def read_cells(
     lighter than midway between the border and the lightest cell; ``local_always``: read
     ``quiet_local`` whatever ``quiet`` is, for :func:`measure`)."""
     if side_px is None:
-        side_px = sum(_sides(corners)) / 4
+        side_px = sum(quad_sides(corners)) / 4
     layout = _layout(marker_size)
     quad = np.asarray(corners, np.float32)
     warp = np.asarray(cv2.getPerspectiveTransform(quad, layout.target), np.float64)
@@ -731,7 +731,7 @@ class Verifier:
         """Why ``detection`` is vetoed, or None when it is kept."""
         name = detection.dictionary if detection.dictionary in self._sizes else self._first
         size = self._sizes[name]
-        sides = _sides(detection.corners)
+        sides = quad_sides(detection.corners)
         if min(sides) < MIN_PX_PER_CELL * (size + 2):
             return "resolution"
         every = self._all_codes[name]
@@ -839,7 +839,7 @@ def read_detection(
     size = int(aruco_dictionary(dictionary).markerSize)
     every = dictionary_codes(dictionary)
     bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
-    side_px = sum(_sides(detection.corners)) / 4
+    side_px = sum(quad_sides(detection.corners)) / 4
     return read_cells(gray, detection.corners, size, side_px, bits, local_always=local_always)
 
 
@@ -847,7 +847,7 @@ def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
     """What every rule of :meth:`Verifier.check` measures on ``detection`` (read on the grid
     of ``dictionary``, one predefined dictionary), all of it, whatever the thresholds."""
     size = int(aruco_dictionary(dictionary).markerSize)
-    sides = _sides(detection.corners)
+    sides = quad_sides(detection.corners)
     every = dictionary_codes(dictionary)
     valid = 0 <= detection.tag_id < len(every) // 4
     reading = read_detection(gray, detection, dictionary, local_always=True)
@@ -867,6 +867,16 @@ def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
     )
 
 
+def quiet_waived(m: Measures, t: Thresholds) -> bool:
+    """Whether the quiet zone's low side spares a detection of ``m`` under ``t``: a large
+    marker whose cells read as its id clearly (see :data:`QUIET_WAIVER_BITS`)."""
+    return (
+        m.px_per_cell >= t.quiet_waiver_px_per_cell
+        and m.margin is not None
+        and m.margin >= t.quiet_waiver_bits
+    )
+
+
 def veto_reasons(measures: Measures, thresholds: Thresholds) -> list[str]:
     """Every rule of :data:`REASONS` that vetoes a detection of ``measures`` under
     ``thresholds``, in their order: :meth:`Verifier.check` with other thresholds (its reason
@@ -875,12 +885,7 @@ def veto_reasons(measures: Measures, thresholds: Thresholds) -> list[str]:
     reasons: list[str] = []
     if m.shortest_side_px < t.min_px_per_cell * m.cells_across:
         reasons.append("resolution")
-    waived = (
-        m.px_per_cell >= t.quiet_waiver_px_per_cell
-        and m.margin is not None
-        and m.margin >= t.quiet_waiver_bits
-    )
-    low = m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min and not waived
+    low = m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min and not quiet_waived(m, t)
     if m.quiet > t.quiet_max or low:
         reasons.append("quiet_zone")
     if m.border_light > t.border_light_max:
