@@ -19,8 +19,9 @@ def make_detector(
 ) -> Detector:
     """The detector called ``name`` (one of :data:`~.types.DETECTORS`) for ``dictionary``;
     ``wary``: one that replaces a detector whose read stalled, keeping periodic grids away
-    from its first read on (see :mod:`~zenoh_perception.detect.grids`); ``second_look``: small
-    frames are read again for small markers (see :mod:`~zenoh_perception.detect.second_look`).
+    from its first read on (see :mod:`~zenoh_perception.detect.grids`); ``second_look``: frames
+    are looked at again for markers the first read misses (see
+    :mod:`~zenoh_perception.detect.second_look`).
 
     Raises:
         SettingsError: unknown detector or dictionary, or a period out of bounds.

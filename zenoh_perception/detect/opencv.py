@@ -114,7 +114,7 @@ class OpenCvDetector:
         #: once a read proved expensive (see detect/grids.py); from the first read when
         #: ``wary`` (a detector replacing one whose read stalled)
         self.grids = GridKeeper(armed=wary)
-        #: a second read of small frames for markers too small for the default read (see
+        #: a second read of frames for markers the default read misses (see
         #: detect/second_look.py); None: OpenCV's default read alone
         self.second_look = second_look
         # the frame read last, what its read found and the candidates it rejected, when its
