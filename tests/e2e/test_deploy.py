@@ -11,6 +11,7 @@ import re
 import shlex
 import shutil
 import subprocess
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,21 @@ INTERFACE_KINDS = (
     "action_servers",
     "action_clients",
 )
-COMPOSE_VARIABLES = ("ROS_DOMAIN_ID", "ZENOH_CONNECT", "ZENOH_BRIDGE_TAG", "REPLAY_BAG")
+#: Passed to the bridge only when set: an empty ROS_AUTOMATIC_DISCOVERY_RANGE stops it.
+DISCOVERY_VARIABLES = (
+    "ROS_LOCALHOST_ONLY",
+    "ROS_AUTOMATIC_DISCOVERY_RANGE",
+    "ROS_STATIC_PEERS",
+    "CYCLONEDDS_URI",
+)
+COMPOSE_VARIABLES = (
+    "ROS_DISTRO",
+    "ROS_DOMAIN_ID",
+    "ZENOH_CONNECT",
+    "ZENOH_BRIDGE_TAG",
+    "REPLAY_BAG",
+    *DISCOVERY_VARIABLES,
+)
 
 
 # ---- helpers mirroring the plugin ------------------------------------------------------------
@@ -143,6 +158,21 @@ def plugin(bridge_config: Mapping[str, Any]) -> dict[str, Any]:
 def allow(plugin: Mapping[str, Any]) -> dict[str, Any]:
     section: dict[str, Any] = plugin["allow"]
     return section
+
+
+def test_the_shipped_bridge_config_is_what_bridge_config_writes_for_the_defaults() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "zenoh_perception", "bridge-config"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == BRIDGE_CONFIG.read_text(encoding="utf-8"), (
+        "config/zenoh-bridge-ros2dds.json5 differs from `zenoh-perception bridge-config`: "
+        "write it again with `zenoh-perception bridge-config -o config/zenoh-bridge-ros2dds.json5`"
+    )
 
 
 def test_bridge_config_uses_only_keys_the_plugin_accepts(plugin: Mapping[str, Any]) -> None:

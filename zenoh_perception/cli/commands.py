@@ -183,6 +183,45 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.set_defaults(handler=_cmd_status)
 
 
+def _cmd_bridge_config(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import bridge_config  # noqa: PLC0415
+
+    settings = settings_from_args(args)
+    return bridge_config.main(
+        settings,
+        source=str(args.settings) if args.settings else "the default settings",
+        namespace=args.namespace,
+        domain=settings.ros_domain_id if args.domain is None else args.domain,
+        output=args.output,
+    )
+
+
+def _add_bridge_config(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "bridge-config",
+        help="write the zenoh-bridge-ros2dds config that routes the service's topics",
+        description="Write the zenoh-bridge-ros2dds JSON5 that routes exactly the ROS topics "
+        "of these settings (camera inputs ROS -> Zenoh, outputs Zenoh -> ROS).",
+    )
+    add_settings_arguments(parser)
+    group = parser.add_argument_group("bridge")
+    group.add_argument(
+        "--namespace",
+        default="/",
+        help="the bridge's namespace: every key starts with it ('/rover1': rover1/tag is /tag)",
+    )
+    group.add_argument(
+        "--domain",
+        type=bounded_int(0, 232),
+        default=None,
+        help="the bridge's fallback DDS domain (default: ros_domain_id); ROS_DOMAIN_ID wins",
+    )
+    group.add_argument(
+        "-o", "--output", type=Path, default=None, metavar="FILE", help="write FILE, not stdout"
+    )
+    parser.set_defaults(handler=_cmd_bridge_config)
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import view  # noqa: PLC0415
 
@@ -605,4 +644,5 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], 
     _add_probe,
     _add_bench,
     _add_view,
+    _add_bridge_config,
 )
