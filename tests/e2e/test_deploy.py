@@ -356,6 +356,32 @@ def test_bridge_service(services: Mapping[str, Any]) -> None:
     assert bridge["restart"] == "unless-stopped"
 
 
+@pytest.mark.parametrize("distro", ["humble", "jazzy"])
+def test_compose_file_validates_for_each_distribution(
+    compose_env: tuple[dict[str, str], Path], distro: str
+) -> None:
+    result = _run_compose(compose_env, "config", "-q", extra_env={"ROS_DISTRO": distro})
+    assert result.returncode == 0, result.stderr
+    services = _compose_config(compose_env, {"ROS_DISTRO": distro})["services"]
+    assert services["bridge"]["environment"]["ROS_DISTRO"] == distro
+
+
+def test_discovery_variables_reach_the_bridge_only_when_set(
+    compose_env: tuple[dict[str, str], Path], services: Mapping[str, Any]
+) -> None:
+    unset = services["bridge"]["environment"]
+    # null: Docker leaves the variable out of the container (the bridge then uses its default)
+    assert all(unset[name] is None for name in DISCOVERY_VARIABLES)
+    given = {
+        "ROS_LOCALHOST_ONLY": "1",
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "ROS_STATIC_PEERS": "192.0.2.7",
+        "CYCLONEDDS_URI": "<CycloneDDS><Domain><Tracing/></Domain></CycloneDDS>",
+    }
+    environment = _compose_config(compose_env, given)["services"]["bridge"]["environment"]
+    assert {name: environment[name] for name in DISCOVERY_VARIABLES} == given
+
+
 def test_ros_domain_id_comes_from_the_environment(
     compose_env: tuple[dict[str, str], Path],
 ) -> None:
