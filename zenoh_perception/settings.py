@@ -158,6 +158,10 @@ class Settings:
         default="bridge",
         metadata=_doc("'bridge' (zenoh-bridge-ros2dds) or 'rmw_zenoh' (a ROS 2 node itself)"),
     )
+    bridge_announce: bool = field(
+        default=True,
+        metadata=_doc("bridge: announce each ROS output to zenoh-bridge-ros2dds at once"),
+    )
     ros_domain_id: int = field(default=0, metadata=_doc("rmw_zenoh: ROS_DOMAIN_ID of the graph"))
     ros_node_name: str = field(
         default="zenoh_perception", metadata=_doc("rmw_zenoh: the service's ROS node name")

@@ -2,7 +2,10 @@
 own on an rmw_zenoh graph (``rmw_zenoh``).
 
 Each topic is an entry of :data:`~zenoh_perception.wire.ros_topics.ROS_TOPICS`. In bridge mode
-an entry is its plain key (zenoh-bridge-ros2dds does the rest). In rmw_zenoh mode the service
+an entry is its plain key (zenoh-bridge-ros2dds does the rest); with ``bridge_announce`` each
+publisher also declares the bridge's own publisher token
+(:mod:`zenoh_perception.wire.bridge_liveliness`), so that a bridge offers the topic to ROS, with
+its type, before any ROS node subscribes. In rmw_zenoh mode the service
 declares the node's liveliness token, and per entry an rmw_zenoh key
 (``<domain>/<topic>/<DDS type>/<hash>``, ``*`` in the hash of subscriptions) with its ``MP``
 or ``MS`` token; every sample it publishes carries rmw_zenoh's attachment (sequence number,
@@ -19,6 +22,14 @@ from typing import Any
 import zenoh
 
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.bridge_liveliness import (
+    BridgeQos,
+    BridgeTokenError,
+    Durability,
+    History,
+    Reliability,
+    publisher_token,
+)
 from zenoh_perception.wire.messages import make_typestore
 from zenoh_perception.wire.rmw_zenoh import (
     ANY_HASH,
@@ -26,6 +37,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     SUBSCRIPTION,
     Attachment,
     NodeInfo,
+    Qos,
     fully_qualified,
     gid_of,
     topic_key,
@@ -160,7 +172,7 @@ class RosTransport:
         )
         token = self._token(topic, PUBLISHER, stream)
         if token is None:
-            return TopicPublisher(publisher)
+            return TopicPublisher(publisher, token=self._bridge_token(topic, publisher))
         return TopicPublisher(
             publisher,
             gid=gid_of(token),
@@ -212,6 +224,26 @@ class RosTransport:
                 return self._session.liveliness().declare_token(token)
         return None
 
+    def _bridge_token(
+        self, topic: RosTopic, publisher: zenoh.Publisher
+    ) -> zenoh.LivelinessToken | None:
+        """The bridge's publisher token of ``publisher`` (bridge mode, ``bridge_announce``);
+        None otherwise, or when its key cannot stand in a token (a stream named with a '§'):
+        the bridge then offers the topic once a ROS node subscribes, as without the token."""
+        if self.rmw_zenoh or not self._settings.bridge_announce:
+            return None
+        user_data = f"typehash={self._hash(topic)};"
+        try:
+            token = publisher_token(
+                str(self._session.zid()),
+                str(publisher.key_expr),
+                self._type(topic),
+                _bridge_qos(topic.qos, user_data),
+            )
+        except BridgeTokenError:
+            return None
+        return self._session.liveliness().declare_token(token)
+
     def _setting(self, topic: RosTopic) -> str:
         """The key setting of ``topic``, which holds one key (an output, or an input that is
         not a list)."""
@@ -246,3 +278,16 @@ class RosTransport:
             hash_=self._hash(topic),
             qos=topic.qos,
         )
+
+
+def _bridge_qos(qos: Qos, user_data: str) -> BridgeQos:
+    """An rmw QoS as the bridge's token writes a DDS writer's: Cyclone DDS's numbers, keyless
+    (ROS messages have no key), the type hash in USER_DATA as rmw_cyclonedds puts it there."""
+    return BridgeQos(
+        keyless=True,
+        reliability=Reliability[qos.reliability.name],
+        durability=Durability[qos.durability.name],
+        history=History[qos.history.name],
+        depth=qos.depth,
+        user_data=user_data,
+    )
