@@ -442,6 +442,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from zenoh_perception.bench import overhead  # noqa: PLC0415
 
         return overhead.main(args)
+    if args.link:
+        from zenoh_perception.bench import link  # noqa: PLC0415
+
+        return link.main(args)
     if args.streams:
         from zenoh_perception.bench import streams  # noqa: PLC0415
 
@@ -553,6 +557,12 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--streams",
         action="store_true",
         help="three VGA cameras at 15 Hz into one service, alone and beside an HD2K one",
+    )
+    group.add_argument(
+        "--link",
+        action="store_true",
+        help="HD720 as raw Image CDR and as image_transport's JPEG: bytes a frame puts on a "
+        "link, and put -> tag through the service, in lockstep",
     )
     group.add_argument(
         "--rate",
