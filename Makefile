@@ -20,11 +20,11 @@ PYTEST_ARGS ?= -n auto --dist loadgroup
 
 .PHONY: venv run demo echo test lint typecheck pytest bench flood soak fuzz stalls exit-stress system-tools clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml bench/pyproject.toml
 	@test -n "$(PYTHON)" || { echo "error: Python 3.11+ not found (set PYTHON=...)" >&2; exit 1; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[dev]' -e ./bench
 	@touch $(STAMP)
 
 venv: $(STAMP)
@@ -50,8 +50,8 @@ system-tools:
 	fi
 
 lint: venv
-	$(BIN)/ruff check zenoh_perception tools tests corpus
-	$(BIN)/ruff format --check zenoh_perception tools tests corpus
+	$(BIN)/ruff check zenoh_perception bench tools tests corpus
+	$(BIN)/ruff format --check zenoh_perception bench tools tests corpus
 
 typecheck: venv
 	$(BIN)/mypy

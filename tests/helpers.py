@@ -23,8 +23,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from zenoh_perception.bench._loopback import free_port, loopback_config, loopback_endpoint
 from zenoh_perception.settings import Settings
+from zenoh_perception_bench._loopback import free_port, loopback_config, loopback_endpoint
 
 REPO = Path(__file__).resolve().parent.parent
 #: How long a test waits, by default, for something that should come: generous, since it

@@ -1,7 +1,9 @@
 """The package's layers: imports flow one way, and the command line stays light.
 
-The stress tools (``tools/``, not installed) sit on top of the package; nothing in the package
-imports them, and neither imports the tests."""
+The benchmark package (``bench/zenoh_perception_bench``: benchmarks, scene generator, demo
+camera) sits on top of the service's package, which never imports it but from the command
+that runs it; the stress tools (``tools/``, not installed) sit on top of both; nothing imports
+the tests."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "zenoh_perception"
+BENCH = REPO / "bench"
 TOOLS = REPO / "tools"
 
 # Bottom to top: a module may import from its own layer and the layers below it.
@@ -22,23 +25,24 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("zenoh_perception.tags",),
     ("zenoh_perception.wire",),
     ("zenoh_perception.detect",),
-    ("zenoh_perception.scene",),
     ("zenoh_perception.settings",),
     ("zenoh_perception.pipeline",),
     ("zenoh_perception.service",),
     ("zenoh_perception.camera",),
-    ("zenoh_perception.bench",),
+    ("zenoh_perception_bench.scene",),
+    ("zenoh_perception_bench",),
     ("zenoh_perception.cli", "zenoh_perception.__main__"),
     ("tools",),
 )
 #: Top-level packages whose imports the layers govern (``tests`` is in none: nothing imports it).
-CHECKED = ("zenoh_perception", "tools", "tests")
+CHECKED = ("zenoh_perception", "zenoh_perception_bench", "tools", "tests")
 # The one place that imports inside functions: each subcommand's module, when it runs.
 LAZY = "zenoh_perception.cli.commands"
 
 
 def _module_name(path: Path) -> str:
-    parts = path.relative_to(REPO).with_suffix("").parts
+    root = BENCH if path.is_relative_to(BENCH) else REPO
+    parts = path.relative_to(root).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -70,7 +74,7 @@ def _imports(path: Path) -> list[tuple[str, bool]]:
     return found
 
 
-MODULES = sorted(PACKAGE.rglob("*.py")) + sorted(TOOLS.rglob("*.py"))
+MODULES = sorted(PACKAGE.rglob("*.py")) + sorted(BENCH.rglob("*.py")) + sorted(TOOLS.rglob("*.py"))
 
 
 @pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(REPO)))
@@ -99,13 +103,13 @@ def test_the_command_line_loads_no_opencv_scene_or_bench() -> None:
     code = (
         "import sys, zenoh_perception.cli.main; "
         "print(' '.join(m for m in sys.modules if m.split('.')[0] in "
-        "('cv2', 'zenoh_perception')))"
+        "('cv2', 'zenoh_perception', 'zenoh_perception_bench')))"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     ).stdout.split()
     assert "zenoh_perception.cli.main" in out
-    heavy = [m for m in out if m == "cv2" or m.split(".")[1:2] in (["scene"], ["bench"])]
+    heavy = [m for m in out if m == "cv2" or m.startswith("zenoh_perception_bench")]
     heavy += [m for m in out if m in ("zenoh_perception.service.node", "zenoh_perception.pipeline")]
     assert heavy == []
 
@@ -114,3 +118,32 @@ def test_settings_import_no_detector() -> None:
     code = "import sys, zenoh_perception.settings; print('cv2' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_the_service_package_ships_no_bench_scene_or_demo() -> None:
+    assert not (PACKAGE / "bench").exists()
+    assert not (PACKAGE / "scene").exists()
+    assert not (PACKAGE / "camera" / "demo.py").exists()
+    assert _layer("zenoh_perception_bench.scene") > _layer("zenoh_perception.camera")
+    pyproject = (REPO / "pyproject.toml").read_text(encoding="utf-8")
+    assert 'include = ["zenoh_perception", "zenoh_perception.*"]' in pyproject
+
+
+@pytest.mark.parametrize("command", ["bench", "demo"])
+def test_bench_and_demo_say_how_to_install_the_bench_package(
+    command: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import importlib.util
+
+    from zenoh_perception.cli import main
+
+    real = importlib.util.find_spec
+
+    def without_bench(name: str, package: str | None = None) -> object:
+        return None if name == "zenoh_perception_bench" else real(name, package)
+
+    monkeypatch.setattr(importlib.util, "find_spec", without_bench)
+    assert main.main([command]) == 2
+    err = capsys.readouterr().err
+    assert "pip install -e ./bench" in err
+    assert f"make {command}" in err

@@ -12,13 +12,13 @@ import pytest
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
-from zenoh_perception.scene import render_markers
-from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import closeness_from_area
 from zenoh_perception.tags.pose import Intrinsics
 from zenoh_perception.tags.selection import NO_TAG, Metric, Policy, selected_message
 from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta, decode_raw_frame
+from zenoh_perception_bench.scene import render_markers
+from zenoh_perception_bench.scene.lookalikes import lookalike_frame
 
 
 def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from zenoh_perception.cli.main import build_parser
 from zenoh_perception.resolutions import RESOLUTIONS
-from zenoh_perception.scene import CameraModel
+from zenoh_perception_bench.scene import CameraModel
 
 
 def test_the_zed_resolutions() -> None:

@@ -33,14 +33,14 @@ import numpy.typing as npt
 import zenoh
 
 from tools.rig import STATUS_KEY, Camera, Listener, marker_frame, proc_sample, wait_status
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import frames_of, is_idle
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.service.status import query_status
 from zenoh_perception.settings import Settings
+from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.processes import frames_of, is_idle
 
 # -- the load check ------------------------------------------------------------------------------
 

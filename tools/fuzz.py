@@ -42,10 +42,10 @@ import zenoh
 
 from tools.fuzz_cases import GENERATORS, OK, cases, expected_outcome
 from tools.rig import Camera, Listener, marker_frame, wait_status
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import frames_of, is_idle, start_service, stop_service
 from zenoh_perception.service.node import PROCESSING_ERROR
 from zenoh_perception.wire.frames import encode_image_cdr
+from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.processes import frames_of, is_idle, start_service, stop_service
 
 # -- the run ---------------------------------------------------------------------------------------
 

@@ -1,8 +1,8 @@
 """The pieces the stress tools and the tests share to drive a service: marker frames, a
 raw-frame camera, a listener of the service's outputs, a wait on its status, /proc readings.
 
-Status counts (:func:`~zenoh_perception.bench.processes.frames_of`,
-:func:`~zenoh_perception.bench.processes.is_idle`) come from the package's bench, which uses
+Status counts (:func:`~zenoh_perception_bench.processes.frames_of`,
+:func:`~zenoh_perception_bench.processes.is_idle`) come from the package's bench, which uses
 them too."""
 
 from __future__ import annotations

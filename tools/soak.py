@@ -35,11 +35,11 @@ from tools.rig import (
     proc_sample,
     wait_status,
 )
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import frames_of, is_idle, start_service, stop_service
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.wire.records import decode_record
+from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.processes import frames_of, is_idle, start_service, stop_service
 
 _SEQ_SLOTS = 1 << 14  # put times kept for latency matching (~4.5 min at 60 Hz)
 

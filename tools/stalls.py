@@ -36,8 +36,12 @@ import numpy.typing as npt
 import zenoh
 
 from tools.rig import percentile
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import (
+from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.opencv import aruco_dictionary
+from zenoh_perception.service.watchdog import IsolatedDetector
+from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.processes import (
     Camera,
     RawFrame,
     Remote,
@@ -45,12 +49,8 @@ from zenoh_perception.bench.processes import (
     raw_frame,
     stop_service,
 )
-from zenoh_perception.bench.runners import DICTIONARY, rotation
-from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.opencv import aruco_dictionary
-from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
-from zenoh_perception.service.watchdog import IsolatedDetector
-from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception_bench.runners import DICTIONARY, rotation
+from zenoh_perception_bench.scene import CameraModel, Effects, SceneGenerator
 
 Gray = npt.NDArray[np.uint8]
 #: (width, height, square px): the boards of the measurements.

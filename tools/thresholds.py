@@ -44,14 +44,6 @@ from typing import Any, Final, Literal
 
 import numpy as np
 
-from zenoh_perception.bench.dataset import (
-    TooLargeError,
-    data_folder,
-    frames,
-    load_manifest,
-)
-from zenoh_perception.bench.runners import BGRA8
-from zenoh_perception.bench.scoring import Labels, Score
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.regions import seen_again
 from zenoh_perception.detect.types import Detection
@@ -67,6 +59,14 @@ from zenoh_perception.detect.verify import (
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import Frame
+from zenoh_perception_bench.dataset import (
+    TooLargeError,
+    data_folder,
+    frames,
+    load_manifest,
+)
+from zenoh_perception_bench.runners import BGRA8
+from zenoh_perception_bench.scoring import Labels, Score
 
 #: The dictionary whose false ids the study reports apart (the service's default).
 DEFAULT_DICTIONARY: Final = "DICT_4X4_50"

@@ -165,6 +165,18 @@ class FrameAbandonedError(PerceptionError):
         self.elapsed_ms = elapsed_ms
 
 
+class MissingPackageError(PerceptionError):
+    """A command that needs the benchmark package (the benchmarks, the scene generator, the
+    demo camera), which the service does not ship and is not installed."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__(
+            f"zenoh-perception {command} needs the benchmark package zenoh-perception-bench, "
+            "which the service does not ship: from a checkout of zenoh-perception, "
+            f"pip install -e ./bench (make {command} installs it)"
+        )
+
+
 class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
 

@@ -22,9 +22,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from zenoh_perception.bench.framesets import Plan
 from zenoh_perception.cli import main as cli
-from zenoh_perception.scene import render_markers
+from zenoh_perception_bench.framesets import Plan
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 #: The plan of the ``quick`` run: ``--quick`` with fewer frames, to keep the suite short.

@@ -22,8 +22,10 @@ import pytest
 
 from tests.bench.conftest import H, W, labelled, square
 from tests.helpers import cli_command
-from zenoh_perception.bench import dataset
-from zenoh_perception.bench.dataset import (
+from zenoh_perception.cli import main as cli
+from zenoh_perception.settings import Settings
+from zenoh_perception_bench import dataset
+from zenoh_perception_bench.dataset import (
     DatasetError,
     Item,
     evaluate,
@@ -31,13 +33,11 @@ from zenoh_perception.bench.dataset import (
     load_manifest,
     nothing_found_hint,
 )
-from zenoh_perception.bench.goals import dataset_goals
-from zenoh_perception.bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
-from zenoh_perception.bench.runners import BEST, SHOWN, rotation
-from zenoh_perception.bench.scoring import BUCKETS, size_bucket
-from zenoh_perception.cli import main as cli
-from zenoh_perception.scene import render_markers
-from zenoh_perception.settings import Settings
+from zenoh_perception_bench.goals import dataset_goals
+from zenoh_perception_bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
+from zenoh_perception_bench.runners import BEST, SHOWN, rotation
+from zenoh_perception_bench.scene import render_markers
+from zenoh_perception_bench.scoring import BUCKETS, size_bucket
 
 
 def test_every_item_is_scored_for_both_detectors(corpus: Path) -> None:

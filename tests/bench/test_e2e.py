@@ -9,18 +9,18 @@ import numpy as np
 import pytest
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench import e2e
-from zenoh_perception.bench.e2e import (
+from zenoh_perception.settings import Settings
+from zenoh_perception_bench import e2e
+from zenoh_perception_bench.e2e import (
     LOCKSTEP_DEADLINE_MS,
     Lockstep,
     lockstep,
     record_detections,
 )
-from zenoh_perception.bench.framesets import Plan
-from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR, ServiceError
-from zenoh_perception.bench.scoring import Tally
-from zenoh_perception.scene import CameraModel, SceneGenerator
-from zenoh_perception.settings import Settings
+from zenoh_perception_bench.framesets import Plan
+from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR, ServiceError
+from zenoh_perception_bench.scene import CameraModel, SceneGenerator
+from zenoh_perception_bench.scoring import Tally
 
 ENTRY_KEYS = {*E2E_DETECTORS, FLOOR, "baseline_detection", "camera", "passes", "pass_ratios"}
 

@@ -9,7 +9,7 @@ import time
 import zenoh
 
 from tests.helpers import open_session, wait_until
-from zenoh_perception.bench.fleet import (
+from zenoh_perception_bench.fleet import (
     CONFIGS,
     HANDOVER_S,
     Answer,

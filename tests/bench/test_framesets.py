@@ -6,9 +6,9 @@ import io
 
 import numpy as np
 
-from zenoh_perception.bench.framesets import RESOLUTIONS, VIDEO_RESOLUTION, Plan, frame_sets
-from zenoh_perception.bench.progress import Progress
 from zenoh_perception.resolutions import RESOLUTIONS as SIZES
+from zenoh_perception_bench.framesets import RESOLUTIONS, VIDEO_RESOLUTION, Plan, frame_sets
+from zenoh_perception_bench.progress import Progress
 
 TINY = Plan(frames=2, video_frames=3, distractor_frames=1, throughput_s=0.1, e2e_passes=1)
 

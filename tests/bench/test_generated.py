@@ -12,12 +12,12 @@ import cv2
 import pytest
 
 from tests.bench.conftest import QUICK_PLAN, BenchRun
-from zenoh_perception.bench import generated
-from zenoh_perception.bench.framesets import BOARD_SQUARES_QUICK, RESOLUTIONS, Plan
-from zenoh_perception.bench.reach import DISTANCES_M
-from zenoh_perception.bench.runners import BEST
-from zenoh_perception.bench.scoring import Tally
-from zenoh_perception.scene.boards import BOARD_KINDS
+from zenoh_perception_bench import generated
+from zenoh_perception_bench.framesets import BOARD_SQUARES_QUICK, RESOLUTIONS, Plan
+from zenoh_perception_bench.reach import DISTANCES_M
+from zenoh_perception_bench.runners import BEST
+from zenoh_perception_bench.scene.boards import BOARD_KINDS
+from zenoh_perception_bench.scoring import Tally
 
 SUMMARY_KEYS = set(Tally().summary())
 REPORT_KEYS = {

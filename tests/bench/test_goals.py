@@ -7,7 +7,7 @@ from typing import Any
 import pytest
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench.goals import (
+from zenoh_perception_bench.goals import (
     CENTRE_ERROR_PX,
     dataset_goals,
     goals,

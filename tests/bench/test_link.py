@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from zenoh_perception.bench import link, overhead
 from zenoh_perception.cli import main as cli
 from zenoh_perception.wire.compressed import decode_compressed_cdr
 from zenoh_perception.wire.frames import decode_image_cdr
+from zenoh_perception_bench import link, overhead
 
 
 def test_each_frame_is_the_raw_image_and_image_transports_jpeg() -> None:

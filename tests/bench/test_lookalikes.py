@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from zenoh_perception.bench.goals import lookalike_goals
-from zenoh_perception.bench.lookalikes import lookalike_report
+from zenoh_perception_bench.goals import lookalike_goals
+from zenoh_perception_bench.lookalikes import lookalike_report
 
 #: Two families (every family is tested in tests/detect/test_verify.py).
 FEW = ("DICT_4X4_50", "DICT_APRILTAG_36h11")

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from zenoh_perception.bench import _loopback
-from zenoh_perception.bench._loopback import free_port, loopback_endpoint
+from zenoh_perception_bench import _loopback
+from zenoh_perception_bench._loopback import free_port, loopback_endpoint
 
 
 def _bindable(port: int) -> bool:

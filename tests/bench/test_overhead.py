@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from zenoh_perception.bench import overhead
-from zenoh_perception.bench.runners import DICTIONARY, Baseline
 from zenoh_perception.cli import main as cli
+from zenoh_perception_bench import overhead
+from zenoh_perception_bench.runners import DICTIONARY, Baseline
 
 
 def _times(

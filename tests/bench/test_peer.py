@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from tests.helpers import run_cli
-from zenoh_perception.bench import peer
 from zenoh_perception.cli import main as cli
+from zenoh_perception_bench import peer
 
 #: The Python with the ros2 extra: this one, or the one named by ZP_ROS_PYTHON.
 ROS_PYTHON = os.environ.get("ZP_ROS_PYTHON", sys.executable)

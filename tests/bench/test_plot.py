@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from zenoh_perception.bench.plot import plot
-from zenoh_perception.bench.runners import BEST
+from zenoh_perception_bench.plot import plot
+from zenoh_perception_bench.runners import BEST
 
 
 def _summary(median: float, p99: float) -> dict[str, float]:

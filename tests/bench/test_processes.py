@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import zenoh
 
-from zenoh_perception.bench._loopback import loopback_config, loopback_endpoint
-from zenoh_perception.bench.processes import (
+from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.processes import (
     FLOOR,
     Camera,
     frames_of,
@@ -20,7 +20,7 @@ from zenoh_perception.bench.processes import (
     services,
     sigterm_exits,
 )
-from zenoh_perception.scene import CameraModel, SceneGenerator
+from zenoh_perception_bench.scene import CameraModel, SceneGenerator
 
 
 def test_a_raw_frame_is_the_bgra_payload_and_its_attachment() -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 
-from zenoh_perception.bench.progress import Progress, tick
+from zenoh_perception_bench.progress import Progress, tick
 
 
 class Terminal(io.StringIO):

@@ -3,9 +3,9 @@ OpenCV's default, its best setting, the service."""
 
 from __future__ import annotations
 
-from zenoh_perception.bench.reach import TAG_M, range_report, reach
-from zenoh_perception.bench.report import format_report
-from zenoh_perception.bench.runners import BEST
+from zenoh_perception_bench.reach import TAG_M, range_report, reach
+from zenoh_perception_bench.report import format_report
+from zenoh_perception_bench.runners import BEST
 
 
 def test_the_range_is_the_furthest_distance_reached_with_every_nearer_one() -> None:

@@ -9,12 +9,12 @@ from typing import Any
 import pytest
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench.dataset import evaluate, load_manifest
-from zenoh_perception.bench.processes import E2E_DETECTORS, FLOOR
-from zenoh_perception.bench.report import fmt, format_dataset_report, format_report, table
-from zenoh_perception.bench.runners import BEST, PAIR, SHOWN
-from zenoh_perception.bench.scoring import size_bucket
 from zenoh_perception.settings import Settings
+from zenoh_perception_bench.dataset import evaluate, load_manifest
+from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR
+from zenoh_perception_bench.report import fmt, format_dataset_report, format_report, table
+from zenoh_perception_bench.runners import BEST, PAIR, SHOWN
+from zenoh_perception_bench.scoring import size_bucket
 
 
 def rows(text: str) -> list[list[str]]:

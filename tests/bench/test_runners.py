@@ -8,8 +8,10 @@ import numpy.typing as npt
 import pytest
 
 from tests.bench.conftest import square
-from zenoh_perception.bench.framesets import Plan, board_frames
-from zenoh_perception.bench.runners import (
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.settings import Settings
+from zenoh_perception_bench.framesets import Plan, board_frames
+from zenoh_perception_bench.runners import (
     BEST,
     BEST_SETTING,
     PAIR,
@@ -23,9 +25,7 @@ from zenoh_perception.bench.runners import (
     pair,
     rotation,
 )
-from zenoh_perception.detect.types import Detection
-from zenoh_perception.scene import CameraModel, Effects, SceneGenerator, render_markers
-from zenoh_perception.settings import Settings
+from zenoh_perception_bench.scene import CameraModel, Effects, SceneGenerator, render_markers
 
 
 def test_rotation_puts_each_first_in_turn() -> None:

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from tests.bench.conftest import square
-from zenoh_perception.bench.dataset import Item
-from zenoh_perception.bench.scoring import BUCKETS, Score, Tally, rounded, score, size_bucket
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
+from zenoh_perception_bench.dataset import Item
+from zenoh_perception_bench.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
+from zenoh_perception_bench.scoring import BUCKETS, Score, Tally, rounded, score, size_bucket
 
 
 def two_tags() -> Scene:

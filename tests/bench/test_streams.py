@@ -6,8 +6,8 @@ from typing import Any
 
 import pytest
 
-from zenoh_perception.bench import streams
 from zenoh_perception.cli import main as cli
+from zenoh_perception_bench import streams
 
 
 def _row(answered: int, median: float) -> dict[str, Any]:

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from tests.bench.conftest import BenchRun
-from zenoh_perception.bench.framesets import Plan
-from zenoh_perception.bench.processes import E2E_DETECTORS
-from zenoh_perception.bench.throughput import THROUGHPUT_HZ
+from zenoh_perception_bench.framesets import Plan
+from zenoh_perception_bench.processes import E2E_DETECTORS
+from zenoh_perception_bench.throughput import THROUGHPUT_HZ
 
 
 def test_every_service_got_every_frame_at_60_hz(quick: BenchRun, quick_no_shm: BenchRun) -> None:

@@ -11,11 +11,11 @@ import numpy as np
 import numpy.typing as npt
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from zenoh_perception.scene import render_markers
 from zenoh_perception.wire.frames import (
     encode_image_cdr,
 )
 from zenoh_perception.wire.messages import IMAGE_TYPE, TYPESTORE
+from zenoh_perception_bench.scene import render_markers
 
 Pixels = npt.NDArray[np.uint8]
 

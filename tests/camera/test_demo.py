@@ -13,8 +13,11 @@ import numpy as np
 import pytest
 
 from tests.helpers import STREAMS, Collector, loopback_config, open_session, parse_pairs, wait_until
-from zenoh_perception.camera import demo
-from zenoh_perception.camera.demo import (
+from zenoh_perception.errors import SettingsError
+from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import decode_image_cdr, decode_raw_frame
+from zenoh_perception_bench import demo
+from zenoh_perception_bench.demo import (
     MIN_READABLE_SIDE_PX,
     Summary,
     agreement,
@@ -22,10 +25,7 @@ from zenoh_perception.camera.demo import (
     format_agreement,
     publish_camera,
 )
-from zenoh_perception.errors import SettingsError
-from zenoh_perception.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
-from zenoh_perception.settings import Settings
-from zenoh_perception.wire.frames import decode_image_cdr, decode_raw_frame
+from zenoh_perception_bench.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
 
 
 def _tag(tag_id: int, x: float, y: float) -> dict[str, Any]:

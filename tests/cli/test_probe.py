@@ -13,7 +13,7 @@ import pytest
 from tests.helpers import run_cli
 from zenoh_perception.cli.probe import FAMILIES, READ_WITH, smallest_dictionary
 from zenoh_perception.detect.types import DICTIONARIES
-from zenoh_perception.scene import render_markers
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 

@@ -9,9 +9,9 @@ import pytest
 from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.pipeline import Pipeline
-from zenoh_perception.scene import render_markers
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
+from zenoh_perception_bench.scene import render_markers
 
 SHAPE = (480, 640)
 

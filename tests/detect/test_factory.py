@@ -10,7 +10,7 @@ from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.tracking import TrackingDetector
 from zenoh_perception.detect.types import DETECTORS
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.scene import render_markers
+from zenoh_perception_bench.scene import render_markers
 
 
 def test_make_detector_names() -> None:

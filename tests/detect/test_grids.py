@@ -17,8 +17,8 @@ from zenoh_perception.detect.grids import (
     on_painted,
 )
 from zenoh_perception.detect.opencv import OpenCvDetector, aruco_dictionary
-from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
-from zenoh_perception.scene.boards import BOARD_KINDS, board_scene
+from zenoh_perception_bench.scene import CameraModel, Effects, SceneGenerator
+from zenoh_perception_bench.scene.boards import BOARD_KINDS, board_scene
 
 W, H = 1280, 720
 

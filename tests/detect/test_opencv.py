@@ -15,7 +15,7 @@ from zenoh_perception.detect.opencv import (
     single_threaded,
 )
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.scene import render_markers
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 

@@ -20,9 +20,9 @@ from zenoh_perception.detect.second_look import (
 )
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.pipeline import Pipeline
-from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
+from zenoh_perception_bench.scene.lookalikes import lookalike_frame
 
 Gray = npt.NDArray[np.uint8]
 DICTIONARY = "DICT_4X4_50"

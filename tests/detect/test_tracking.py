@@ -13,7 +13,7 @@ from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.tracking import TrackingConfig, TrackingDetector
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.scene import CameraModel, Effects, SceneGenerator, render_markers
+from zenoh_perception_bench.scene import CameraModel, Effects, SceneGenerator, render_markers
 
 W, H = 640, 480
 

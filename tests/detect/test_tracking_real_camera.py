@@ -15,7 +15,7 @@ from tests.scene.cases import DICTIONARIES, SIZE_NAMES, random_scene_sized, with
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraEffects,
     CameraModel,
     Effects,

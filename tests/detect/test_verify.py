@@ -32,17 +32,17 @@ from zenoh_perception.detect.verify import (
     veto_reasons,
 )
 from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
-from zenoh_perception.scene import (
+from zenoh_perception.settings import Settings
+from zenoh_perception.tags.geometry import mean_side
+from zenoh_perception.wire.frames import ENCODINGS, Frame
+from zenoh_perception_bench.scene import (
     CameraEffects,
     CameraModel,
     Effects,
     SceneGenerator,
     render_markers,
 )
-from zenoh_perception.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
-from zenoh_perception.settings import Settings
-from zenoh_perception.tags.geometry import mean_side
-from zenoh_perception.wire.frames import ENCODINGS, Frame
+from zenoh_perception_bench.scene.lookalikes import FAMILIES, lookalike_frame, true_tag_frame
 
 #: Frames of each kind drawn per test: enough that OpenCV reads ids on them.
 FRAMES = 3

@@ -34,11 +34,11 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.bench._loopback import loopback_endpoint
-from zenoh_perception.scene import render_markers
 from zenoh_perception.tags.selection import NO_TAG
 from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
+from zenoh_perception_bench._loopback import loopback_endpoint
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 1280, 720
 # Test cameras block rather than let Zenoh drop a large frame when the machine is busy.

@@ -21,8 +21,8 @@ from tests.helpers import (
 )
 from tests.wire.test_compressed import compressed_cdr
 from tests.wire.test_image_header import png_declaring
-from zenoh_perception.scene import render_markers
 from zenoh_perception.wire.records import TagCodec, decode_record
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 KEY = "zed/left/image/compressed"

@@ -37,13 +37,13 @@ from tests.helpers import (
     wait_for_subscriber,
     wait_until,
 )
-from zenoh_perception.scene import render_markers
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage, TagObservation
 from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, IMAGE_TYPE, TYPESTORE, header
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
+from zenoh_perception_bench.scene import render_markers
 
 FRAMES = "zed/left/image"
 _BLOCK = zenoh.CongestionControl.BLOCK

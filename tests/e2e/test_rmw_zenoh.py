@@ -33,7 +33,6 @@ from tests.helpers import (
     wait_until,
 )
 from tests.wire.test_rmw_zenoh import ROS2_TYPE_HASHES
-from zenoh_perception.scene import render_markers
 from zenoh_perception.wire.compressed import encode_compressed_frame
 from zenoh_perception.wire.frames import RawFrameMeta, decode_raw_frame, encode_image_cdr
 from zenoh_perception.wire.messages import TYPESTORE, make_typestore
@@ -51,6 +50,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     topic_key,
     type_hash,
 )
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 IMAGE = "sensor_msgs/msg/Image"

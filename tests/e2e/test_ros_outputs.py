@@ -18,7 +18,6 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
 )
-from zenoh_perception.scene import render_markers
 from zenoh_perception.wire.frames import RawFrameMeta
 from zenoh_perception.wire.messages import (
     APRILTAG_DETECTION_ARRAY_TYPE,
@@ -26,6 +25,7 @@ from zenoh_perception.wire.messages import (
     TYPESTORE,
 )
 from zenoh_perception.wire.records import decode_record
+from zenoh_perception_bench.scene import render_markers
 
 W, H = 640, 480
 _BLOCK = zenoh.CongestionControl.BLOCK

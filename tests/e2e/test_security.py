@@ -38,7 +38,6 @@ from tests.helpers import (
     wait_for_status,
     wait_for_subscriber,
 )
-from zenoh_perception.scene import render_markers
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.service.ros_transport import RMW_ZENOH
 from zenoh_perception.settings import load_settings
@@ -65,6 +64,7 @@ from zenoh_perception.wire.rmw_zenoh import (
 )
 from zenoh_perception.wire.rmw_zenoh import Token as RmwToken
 from zenoh_perception.wire.ros_topics import ROS_TOPICS, Direction, ros_topic
+from zenoh_perception_bench.scene import render_markers
 
 _CONFIG_DIR = REPO / "config" / "secure"
 _PROFILE_DIRS = {"mtls": _CONFIG_DIR, "usrpwd": _CONFIG_DIR / "usrpwd"}

@@ -22,8 +22,8 @@ from tests.helpers import (
     running_cli,
     wait_for_subscriber,
 )
-from zenoh_perception.scene import render_markers
 from zenoh_perception.wire.frames import RawFrameMeta
+from zenoh_perception_bench.scene import render_markers
 
 #: Every subcommand that opens a Zenoh session, with the arguments it needs besides the flags.
 SESSION_COMMANDS = [

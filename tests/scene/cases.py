@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraEffects,
     CameraModel,
     Effects,

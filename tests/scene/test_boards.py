@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from zenoh_perception.detect.opencv import aruco_dictionary
-from zenoh_perception.scene.boards import BOARD_KINDS, board_scene, board_texture, busy_board_scene
+from zenoh_perception_bench.scene.boards import (
+    BOARD_KINDS,
+    board_scene,
+    board_texture,
+    busy_board_scene,
+)
 
 
 @pytest.mark.parametrize("kind", BOARD_KINDS)

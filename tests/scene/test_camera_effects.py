@@ -22,7 +22,7 @@ from tests.scene.cases import (
     with_camera,
 )
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CAST_KINDS,
     CameraEffects,
     CameraModel,
@@ -32,7 +32,7 @@ from zenoh_perception.scene import (
     SceneError,
     SceneGenerator,
 )
-from zenoh_perception.scene._camera_effects import (
+from zenoh_perception_bench.scene._camera_effects import (
     colour_cast,
     jpeg,
     shear_points,

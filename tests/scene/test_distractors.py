@@ -7,7 +7,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tests.scene.cases import aruco_detect
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraModel,
     Effects,
     SceneGenerator,

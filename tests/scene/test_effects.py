@@ -10,7 +10,7 @@ import numpy.typing as npt
 import pytest
 
 from tests.scene.cases import NEUTRAL, STILL, Image, as_float, facing_scene
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraModel,
     Effects,
     SceneGenerator,

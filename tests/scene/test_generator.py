@@ -20,7 +20,7 @@ from tests.scene.cases import (
     tag_sizes,
 )
 from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraModel,
     Effects,
     MarkerPose,

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from tests.scene.cases import facing
 from zenoh_perception.resolutions import RESOLUTIONS
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     CameraModel,
     DistractorPose,
     MarkerPose,

@@ -6,9 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from zenoh_perception.scene import SceneError
-from zenoh_perception.scene._raster import aruco_dictionary
-from zenoh_perception.scene.lookalikes import (
+from zenoh_perception_bench.scene import SceneError
+from zenoh_perception_bench.scene._raster import aruco_dictionary
+from zenoh_perception_bench.scene.lookalikes import (
     DRAWN_KINDS,
     FAMILIES,
     LOOKALIKE_KINDS,

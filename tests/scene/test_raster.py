@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.scene.cases import DICT_4X4_50, aruco_detect
-from zenoh_perception.scene import (
+from zenoh_perception_bench.scene import (
     SceneError,
     render_markers,
 )

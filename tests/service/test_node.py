@@ -32,14 +32,14 @@ from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.pipeline import VETO_REASONS
-from zenoh_perception.scene import render_markers
-from zenoh_perception.scene.lookalikes import lookalike_frame
 from zenoh_perception.service.node import PerceptionService, run
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage
 from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
 from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, TYPESTORE
 from zenoh_perception.wire.records import TagCodec, decode_record, f32
+from zenoh_perception_bench.scene import render_markers
+from zenoh_perception_bench.scene.lookalikes import lookalike_frame
 
 WIDTH, HEIGHT = 640, 480
 

@@ -18,7 +18,6 @@ import pytest
 import zenoh
 
 from tests.helpers import Collector, open_session, query_status, wait_for_subscriber, wait_until
-from zenoh_perception.scene import render_markers
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.debug_image import annotate as real_annotate
@@ -26,6 +25,7 @@ from zenoh_perception.wire.debug_image import encode_compressed_image as real_en
 from zenoh_perception.wire.frames import RawFrameMeta
 from zenoh_perception.wire.messages import COMPRESSED_IMAGE_TYPE, TYPESTORE
 from zenoh_perception.wire.records import TagCodec, decode_record
+from zenoh_perception_bench.scene import render_markers
 
 Pixels = npt.NDArray[np.uint8]
 

@@ -8,12 +8,12 @@ import numpy as np
 
 from tests.helpers import open_session, wait_until
 from zenoh_perception.pipeline import Pipeline
-from zenoh_perception.scene import render_markers
 from zenoh_perception.service.ros_outputs import RosOutputs
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception.wire.messages import APRILTAG_DETECTION_ARRAY_TYPE, TYPESTORE
+from zenoh_perception_bench.scene import render_markers
 
 
 def test_an_output_is_encoded_only_while_a_subscriber_matches() -> None:

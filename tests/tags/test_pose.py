@@ -8,8 +8,8 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from zenoh_perception.scene import CameraModel, MarkerPose, square_corners
 from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose, quaternion_from_rvec
+from zenoh_perception_bench.scene import CameraModel, MarkerPose, square_corners
 
 VGA = Intrinsics(500.0, 500.0, 319.5, 239.5)
 

@@ -7,6 +7,7 @@ the Docker healthcheck runs ``status`` every few seconds.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -28,7 +29,7 @@ from zenoh_perception.cli.numbers import (
     bounded_float,
     bounded_int,
 )
-from zenoh_perception.errors import SettingsError
+from zenoh_perception.errors import MissingPackageError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.signals import stop_on_signals
 from zenoh_perception.service.zenoh_args import (
@@ -94,8 +95,20 @@ def _cmd_status(args: argparse.Namespace) -> int:
     return status.main(zenoh_config_from_args(args), key=key, timeout=args.timeout)
 
 
+#: The second package of this repository (``bench/``): benchmarks, scene generator, demo camera.
+BENCH_PACKAGE = "zenoh_perception_bench"
+
+
+def _need_bench_package(command: str) -> None:
+    """Refuse ``command`` (exit 2, saying how to install it) when the benchmark package,
+    which the service does not ship, is missing."""
+    if importlib.util.find_spec(BENCH_PACKAGE) is None:
+        raise MissingPackageError(command)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from zenoh_perception.camera import demo  # noqa: PLC0415
+    _need_bench_package("demo")
+    from zenoh_perception_bench import demo  # noqa: PLC0415
 
     return demo.main(
         zenoh_config_from_args(args),
@@ -434,31 +447,32 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    _need_bench_package("bench")
     if args.fleet:
-        from zenoh_perception.bench import fleet  # noqa: PLC0415
+        from zenoh_perception_bench import fleet  # noqa: PLC0415
 
         return fleet.main(args)
     if args.overhead:
-        from zenoh_perception.bench import overhead  # noqa: PLC0415
+        from zenoh_perception_bench import overhead  # noqa: PLC0415
 
         return overhead.main(args)
     if args.link:
-        from zenoh_perception.bench import link  # noqa: PLC0415
+        from zenoh_perception_bench import link  # noqa: PLC0415
 
         return link.main(args)
     if args.streams:
-        from zenoh_perception.bench import streams  # noqa: PLC0415
+        from zenoh_perception_bench import streams  # noqa: PLC0415
 
         return streams.main(args)
     if args.peer is not None:
-        from zenoh_perception.bench import peer  # noqa: PLC0415
+        from zenoh_perception_bench import peer  # noqa: PLC0415
 
         return peer.main(args)
     if args.dataset is not None or args.init is not None:
-        from zenoh_perception.bench import dataset  # noqa: PLC0415
+        from zenoh_perception_bench import dataset  # noqa: PLC0415
 
         return dataset.main(args, load_settings(args.settings))
-    from zenoh_perception.bench import generated  # noqa: PLC0415
+    from zenoh_perception_bench import generated  # noqa: PLC0415
 
     return generated.main(args)
 
