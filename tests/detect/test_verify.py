@@ -429,3 +429,33 @@ def test_veto_reasons_follow_the_thresholds_given() -> None:
     assert veto_reasons(plain, Thresholds(strokes_max=0.2, strokes_min_px_per_cell=5.1)) == [
         "margin"
     ]
+
+
+@pytest.mark.parametrize(
+    ("square_px", "blur"), [(16.0, 0.6), (20.0, 0.9), (24.0, 0.6), (32.0, 0.8)]
+)
+def test_a_small_board_marker_is_kept_by_every_rule(square_px: float, blur: float) -> None:
+    # a ChArUco board of 12 DICT_4X4_50 markers of 12-24 px (2-4 px a cell) at 320x180: its
+    # markers sit in white squares whose corners touch black ones, the cells blur into each
+    # other, and no rule (strokes, grid, quiet_zone above all) may take one of them
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    board = cv2.aruco.CharucoBoard((5, 5), 0.01, 0.0075, dictionary)
+    side = round(5 * square_px)
+    image = cv2.resize(board.generateImage((500, 500)), (side, side), interpolation=cv2.INTER_AREA)
+    noise = np.random.default_rng(0).normal(0.0, 3.0, (180, 320))
+    grey = np.clip(60.0 + noise, 0, 255).astype(np.uint8)
+    y, x = (180 - side) // 2, (320 - side) // 2
+    grey[y : y + side, x : x + side] = image
+    grey = np.asarray(cv2.GaussianBlur(grey, (0, 0), blur), np.uint8)
+    params = cv2.aruco.DetectorParameters()
+    params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = 3, 33
+    params.adaptiveThreshWinSizeStep = 2
+    big = cv2.resize(grey, (640, 360), interpolation=cv2.INTER_LINEAR)
+    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(big)
+    found = [
+        Detection(int(i), np.asarray((c.reshape(4, 2) + 0.5) / 2 - 0.5, np.float32))
+        for c, i in zip(corners, np.asarray(ids).ravel(), strict=True)
+    ]
+    assert len(found) >= 8 and all(0 <= d.tag_id < 12 for d in found)
+    verifier = Verifier("DICT_4X4_50")
+    assert {d.tag_id: verifier.check(grey, d) for d in found} == {d.tag_id: None for d in found}
