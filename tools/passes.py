@@ -76,6 +76,7 @@ SETTINGS: Final = (
     Setting("windows 23-63 step 20", windows=(23, 63, 20)),
     Setting("2x, window 13", scale=2.0, windows=(13, 13, 10)),
     Setting("2x, windows 7-23 step 8", scale=2.0, windows=(7, 23, 8)),
+    Setting("2x, windows 9-17 step 8", scale=2.0, windows=(9, 17, 8)),
     Setting("2x, windows 3-23 step 10", scale=2.0),
     Setting("2x, windows 5-13 step 4", scale=2.0, windows=(5, 13, 4)),
     Setting("2x, windows 5-13 step 4, perimeter 0.01", 2.0, (5, 13, 4), 0.01),

@@ -70,12 +70,13 @@ SCALE: Final = 2
 WINDOW_PX: Final = 13
 #: Frames with a longer side of at most this (webcams at 320x240, 384x216, phones' 320x180)
 #: are read at 2x with the windows of :data:`LOW_RES_WINDOWS` instead: on the real corpus's
-#: low-resolution video of markers of 9-28 px, the one 13 px window read 85 id-frames the
-#: default missed and missed 64 the default read; windows 7-23 read 102 and missed 25, and
-#: on its stills 5 more and none missed (``python -m tools.passes``).
+#: low-resolution video of a board of markers of 9-28 px (every other frame), the one 13 px
+#: window read 267 id-frames the default missed and missed 214 the default read; windows 9
+#: and 17 read 345 and missed 89, at about two thirds of the cost of three windows (7-23,
+#: 334 and 74), and as many on its stills (``python -m tools.passes``).
 LOW_RES_SIDE_PX: Final = 400
 #: The low-resolution frames' adaptive-threshold windows: from, to, step (enlarged pixels).
-LOW_RES_WINDOWS: Final = (7, 23, 8)
+LOW_RES_WINDOWS: Final = (9, 17, 8)
 #: A frame where the default read found a marker larger than this (mean side, frame pixels)
 #: has its tag without waiting for the look.
 SMALL_SIDE_PX: Final = 32.0
