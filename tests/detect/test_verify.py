@@ -450,15 +450,16 @@ def test_a_small_board_marker_is_kept_by_every_rule(
     corners = [[160 - half + tilt, 90 - half], [160 + half - tilt, 90 - half]]
     corners += [[160 + half, 90 + half], [160 - half, 90 + half]]
     homography = cv2.getPerspectiveTransform(
-        np.float32([[0, 0], [500, 0], [500, 500], [0, 500]]), np.float32(corners)
+        np.asarray([[0, 0], [500, 0], [500, 500], [0, 500]], np.float32),
+        np.asarray(corners, np.float32),
     )
     shown = cv2.warpPerspective(screen, homography, (320, 180), borderValue=-1.0)
-    frame = cv2.GaussianBlur(np.where(shown >= 0, shown, 25.0), (0, 0), blur)
-    frame += np.random.default_rng(1).normal(0.0, 4.0, frame.shape)
+    blurred = cv2.GaussianBlur(np.where(shown >= 0, shown, 25.0), (0, 0), blur)
+    frame = np.asarray(blurred, np.float64) + np.random.default_rng(1).normal(0.0, 4.0, (180, 320))
     _, jpeg = cv2.imencode(
         ".jpg", np.clip(frame, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, quality]
     )
-    grey = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE)
+    grey = np.asarray(cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), np.uint8)
     params = cv2.aruco.DetectorParameters()
     params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = 3, 33
     params.adaptiveThreshWinSizeStep = 2
