@@ -259,3 +259,48 @@ def test_the_look_adds_nothing_on_a_dark_surround() -> None:
             gray = np.asarray(cv2.cvtColor(frame, cv2.COLOR_BGRA2GRAY), np.uint8)
             default = OpenCvDetector(DICTIONARY).detect(gray)
             assert SecondLook((DICTIONARY,)).look(gray, list(default)) == default
+
+
+def _board(square_px: float, blur: float, shape: tuple[int, int] = (180, 320)) -> Gray:
+    """A 5x5 ChArUco board of DICT_4X4_50 (12 markers, ids 0-11, each three quarters of its
+    square) with squares of ``square_px``, on a dark ground in a frame of ``shape``,
+    blurred by a Gaussian of ``blur`` px: a phone's low-resolution video of a board."""
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    board = cv2.aruco.CharucoBoard((5, 5), 0.01, 0.0075, dictionary)
+    side = round(5 * square_px)
+    image = cv2.resize(board.generateImage((500, 500)), (side, side), interpolation=cv2.INTER_AREA)
+    noise = np.random.default_rng(0).normal(0.0, 3.0, shape)
+    frame = np.clip(60.0 + noise, 0, 255).astype(np.uint8)
+    y, x = (shape[0] - side) // 2, (shape[1] - side) // 2
+    frame[y : y + side, x : x + side] = image
+    return np.asarray(cv2.GaussianBlur(frame, (0, 0), blur), np.uint8)
+
+
+def test_a_low_resolution_frame_s_marker_only_its_pass_reads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # 320x180, markers of 15 px (2.5 px a cell), soft: the default read and the 2x read with
+    # one 13 px window miss id 7, the low-resolution pass's windows read it
+    frame = _board(20.0, 0.9)
+    default = OpenCvDetector(DICTIONARY).detect(frame)
+    assert 7 not in _ids(default)
+    assert 7 in _ids(SecondLook((DICTIONARY,)).look(frame, list(default)))
+    monkeypatch.setattr(second_look, "LOW_RES_SIDE_PX", 0)  # the one window instead
+    assert 7 not in _ids(SecondLook((DICTIONARY,)).look(frame, list(default)))
+
+
+def test_a_low_resolution_frame_is_looked_at_when_fewer_are_found_than_lately() -> None:
+    markers = [_square(tag_id, 14) for tag_id in range(5)]
+    for shape, low_res in (((180, 320), True), ((480, 640), False), (HD720, False)):
+        look = SecondLook((DICTIONARY,))
+        assert look.due(shape, markers) == NOW  # the first frame
+        assert look.due(shape, markers) is None  # as many as ever: the look cannot help
+        assert look.due(shape, markers[:3]) == NOW  # fewer than on the frame before
+        # as many as the frame before, fewer than lately: a low-resolution frame's small
+        # markers come and go, so only there is it looked at again
+        assert look.due(shape, markers[:3]) == (NOW if low_res else None)
+        assert look.due(shape, markers) is None  # as many as ever again
+    look = SecondLook((DICTIONARY,))
+    look.due((180, 320), markers)
+    # fewer than lately, but a marker over 32 px: its tag goes out before the look
+    assert look.due((180, 320), [_square(9, 40), *markers[:3]]) == LATER

@@ -429,3 +429,46 @@ def test_veto_reasons_follow_the_thresholds_given() -> None:
     assert veto_reasons(plain, Thresholds(strokes_max=0.2, strokes_min_px_per_cell=5.1)) == [
         "margin"
     ]
+
+
+@pytest.mark.parametrize(
+    ("square_px", "blur", "quality", "tilt"),
+    [(20.0, 0.9, 40, 8.0), (22.0, 0.8, 30, 10.0), (24.0, 1.0, 35, 8.0), (20.0, 0.7, 50, 12.0)],
+)
+def test_a_small_board_marker_is_kept_by_every_rule(
+    square_px: float, blur: float, quality: int, tilt: float
+) -> None:
+    # a ChArUco board of 12 DICT_4X4_50 markers of 13-18 px (2-2.7 px a cell) on a dim screen
+    # in a dark room, tilted, soft, JPEG'd, at 320x180, as a phone filmed one: its markers sit
+    # in white squares whose corners touch black ones and its cells blur into each other (the
+    # seams read up to 0.14 of the contrast, the quiet ring down to 0.48), and no rule
+    # (strokes, grid, quiet_zone above all) may take one of them
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    board = cv2.aruco.CharucoBoard((5, 5), 0.01, 0.0075, dictionary)
+    screen = board.generateImage((500, 500)).astype(np.float32) * (110 / 255) + 40
+    half = 5 * square_px / 2
+    corners = [[160 - half + tilt, 90 - half], [160 + half - tilt, 90 - half]]
+    corners += [[160 + half, 90 + half], [160 - half, 90 + half]]
+    homography = cv2.getPerspectiveTransform(
+        np.asarray([[0, 0], [500, 0], [500, 500], [0, 500]], np.float32),
+        np.asarray(corners, np.float32),
+    )
+    shown = cv2.warpPerspective(screen, homography, (320, 180), borderValue=-1.0)
+    blurred = cv2.GaussianBlur(np.where(shown >= 0, shown, 25.0), (0, 0), blur)
+    frame = np.asarray(blurred, np.float64) + np.random.default_rng(1).normal(0.0, 4.0, (180, 320))
+    _, jpeg = cv2.imencode(
+        ".jpg", np.clip(frame, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, quality]
+    )
+    grey = np.asarray(cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), np.uint8)
+    params = cv2.aruco.DetectorParameters()
+    params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = 3, 33
+    params.adaptiveThreshWinSizeStep = 2
+    big = cv2.resize(grey, (640, 360), interpolation=cv2.INTER_LINEAR)
+    found_corners, ids, _ = cv2.aruco.ArucoDetector(dictionary, params).detectMarkers(big)
+    found = [
+        Detection(int(i), np.asarray((c.reshape(4, 2) + 0.5) / 2 - 0.5, np.float32))
+        for c, i in zip(found_corners, np.asarray(ids).ravel(), strict=True)
+    ]
+    assert len(found) >= 4 and all(0 <= d.tag_id < 12 for d in found)
+    verifier = Verifier("DICT_4X4_50")
+    assert {d.tag_id: verifier.check(grey, d) for d in found} == {d.tag_id: None for d in found}

@@ -8,10 +8,13 @@ for many of them, with OpenCV still deciding every id (the caller's veto judges 
 judges every other). The look reads:
 
 - **small frames** (up to :data:`MAX_SIDE_PX` a side) whole, at twice their size with the one
-  window of :data:`WINDOW_PX`. That costs about four default reads of the frame, so it is
+  window of :data:`WINDOW_PX`, or, up to :data:`LOW_RES_SIDE_PX` a side, with the windows of
+  :data:`LOW_RES_WINDOWS`. That costs about four default reads of the frame, so it is
   taken on the stream's first frame and every :data:`PERIOD` frames after, when the default
   read found fewer markers than on the frame before (one may have left its reach), and on the
-  frame after a look that added a marker (to follow it while only the look reads it);
+  frame after a look that added a marker (to follow it while only the look reads it); a
+  low-resolution frame also whenever the default read found fewer markers than on any of the
+  last :data:`PERIOD` frames (its markers of 2-3 px a cell come and go from frame to frame);
 - **larger frames** (HD720 and up, where a whole read at 2x would cost several times a
   frame's budget) only where the default read left a candidate: the quads OpenCV rejected,
   :data:`CANDIDATE_SIDE_PX` a side, the :data:`MAX_CANDIDATES` most like a printed marker
@@ -65,6 +68,15 @@ MAX_SIDE_PX: Final = 1000
 SCALE: Final = 2
 #: The one adaptive-threshold window of the look, pixels of the enlarged frame.
 WINDOW_PX: Final = 13
+#: Frames with a longer side of at most this (webcams at 320x240, 384x216, phones' 320x180)
+#: are read at 2x with the windows of :data:`LOW_RES_WINDOWS` instead: on the real corpus's
+#: low-resolution video of a board of markers of 9-28 px (every other frame), the one 13 px
+#: window read 267 id-frames the default missed and missed 214 the default read; windows 9
+#: and 17 read 345 and missed 89, at about two thirds of the cost of three windows (7-23,
+#: 334 and 74), and as many on its stills (``python -m tools.passes``).
+LOW_RES_SIDE_PX: Final = 400
+#: The low-resolution frames' adaptive-threshold windows: from, to, step (enlarged pixels).
+LOW_RES_WINDOWS: Final = (9, 17, 8)
 #: A frame where the default read found a marker larger than this (mean side, frame pixels)
 #: has its tag without waiting for the look.
 SMALL_SIDE_PX: Final = 32.0
@@ -133,6 +145,12 @@ class SecondLook:
         params.adaptiveThreshWinSizeMax = WINDOW_PX
         self._detector = aruco_detector(self._dictionaries, params)
         params = cv2.aruco.DetectorParameters()
+        first, last, step = LOW_RES_WINDOWS
+        params.adaptiveThreshWinSizeMin = first
+        params.adaptiveThreshWinSizeMax = last
+        params.adaptiveThreshWinSizeStep = step
+        self._low_res_detector = aruco_detector(self._dictionaries, params)
+        params = cv2.aruco.DetectorParameters()
         first, last, step = CANDIDATE_WINDOWS
         params.adaptiveThreshWinSizeMin = first
         params.adaptiveThreshWinSizeMax = last
@@ -143,6 +161,7 @@ class SecondLook:
         self._codes = {name: dictionary_codes(name) for name in self._dictionaries}
         self._frames = 0
         self._previous = 0
+        self._recent: list[int] = []  # markers the default read found, the last PERIOD frames
         self._added = False  # the last look added a marker
         self.counters: dict[str, int] = {"looks": 0, "candidates": 0, "added": 0}
 
@@ -151,8 +170,13 @@ class SecondLook:
         :data:`NOW`, :data:`LATER` or None (not at all); counts the frame."""
         index, previous = self._frames, self._previous
         self._frames, self._previous = index + 1, len(found)
+        most = max(self._recent, default=0)
+        self._recent = [*self._recent[-(PERIOD - 1) :], len(found)]
         searching = max(shape[:2]) > MAX_SIDE_PX and not found
-        if not (index % PERIOD == 0 or len(found) < previous or self._added or searching):
+        # a low-resolution frame where the default read found fewer markers than lately: one
+        # it read lately may be there, too small or too soft for its windows this time
+        short = max(shape[:2]) <= LOW_RES_SIDE_PX and len(found) < most
+        if not (index % PERIOD == 0 or len(found) < previous or self._added or searching or short):
             return None
         if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
             return LATER
@@ -174,10 +198,12 @@ class SecondLook:
         if max(height, width) > MAX_SIDE_PX:
             return self._merge(image, found, self._candidates(image, found, rejected), keep)
         big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
+        low_res = max(height, width) <= LOW_RES_SIDE_PX
+        detector = self._low_res_detector if low_res else self._detector
         more = [
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
             Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary)
-            for d in read_markers(self._detector, big, self._dictionaries)[0]
+            for d in read_markers(detector, big, self._dictionaries)[0]
         ]
         return self._merge(image, found, [(d, False) for d in more], keep)
 
