@@ -37,10 +37,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.bench.dataset import TooLargeError, data_folder, frames, load_manifest
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Measures, Thresholds, measure, veto_reasons
+from zenoh_perception_bench.dataset import TooLargeError, data_folder, frames, load_manifest
 
 
 @dataclass(frozen=True, slots=True)
