@@ -51,7 +51,17 @@ def _subcommands() -> set[str]:
 
 
 def test_the_subcommands() -> None:
-    assert _subcommands() == {"run", "demo", "echo", "status", "replay", "probe", "bench", "view"}
+    assert _subcommands() == {
+        "run",
+        "demo",
+        "echo",
+        "status",
+        "replay",
+        "probe",
+        "bench",
+        "view",
+        "router",
+    }
 
 
 @pytest.mark.parametrize("command", sorted(_subcommands()))

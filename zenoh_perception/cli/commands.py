@@ -91,7 +91,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import status  # noqa: PLC0415
 
     key = check_key("--status-key", args.status_key, concrete=False)
-    return status.main(zenoh_config_from_args(args), key=key, timeout=args.timeout)
+    conf = zenoh_config_from_args(args)
+    return status.main(conf, key=key, timeout=args.timeout, lines=args.lines)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -171,9 +172,15 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
+    parser = sub.add_parser(
+        "status",
+        help="query running services' status (exit 1: none)",
+        description="Prints one JSON array, an object per service that answered; with "
+        "--lines, one object per line.",
+    )
     add_zenoh_arguments(parser)
     parser.add_argument("--status-key", default="perception/status", help="status key")
+    parser.add_argument("--lines", action="store_true", help="one JSON object per line")
     parser.add_argument(
         "--timeout",
         type=bounded_float(0.001, MAX_WAIT_S),
@@ -231,6 +238,26 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="exit after S seconds",
     )
     parser.set_defaults(handler=_cmd_view, leaves_threads=True)
+
+
+def _cmd_router(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import router  # noqa: PLC0415
+
+    conf = zenoh_config_from_args(args, {"mode": "router", **router.ROUTER_DEFAULTS})
+    conf.insert_json5("mode", '"router"')  # a -c file's mode too: this command is a router
+    return router.main(conf, stop_on_signals(), sys.stdout)
+
+
+def _add_router(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "router",
+        help="a Zenoh router (Zenoh's own, as zenohd) for machines without zenohd",
+        description="Zenoh's router from zenoh-python: listens on -l (default tcp/[::]:7447), "
+        "connects to the routers given with -e, prints its zid and where it listens, runs "
+        "until SIGINT/SIGTERM (exit 0). Peers on one machine or one network need none.",
+    )
+    add_zenoh_arguments(parser, mode=False)
+    parser.set_defaults(handler=_cmd_router, leaves_threads=True)
 
 
 def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
@@ -605,4 +632,5 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], 
     _add_probe,
     _add_bench,
     _add_view,
+    _add_router,
 )
