@@ -58,6 +58,7 @@ from zenoh_perception.wire.stream_keys import (
     STREAM,
     Keys,
     StreamNames,
+    any_stream_key,
     has_wildcard,
     key_entries,
     stream_key,
@@ -458,8 +459,7 @@ def _stream_template(name: str, value: str) -> str:
 
 def _any_stream(value: str) -> str:
     """An output key with ``{stream}`` as the key expression of every stream's key."""
-    chunks = value.split("/")
-    return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in chunks)
+    return any_stream_key(value)
 
 
 def _validate_keys(settings: Settings) -> None:

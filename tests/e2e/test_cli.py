@@ -23,7 +23,6 @@ from tests.helpers import (
     Collector,
     OutputLines,
     cli_command,
-    json_objects,
     log_events,
     open_session,
     parse_pairs,

@@ -193,8 +193,10 @@ def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 def _cmd_view(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import view  # noqa: PLC0415
 
+    template = args.debug_image_key or load_settings(args.settings).debug_image_key
+    check_key("--debug-image-key", template.replace("{stream}", "stream"), concrete=True)
     options = view.ViewOptions(
-        key=args.debug_image_key,
+        key=view.view_key(template, args.stream),
         save=args.save,
         every_s=args.every,
         count=args.count,
@@ -215,7 +217,14 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_zenoh_arguments(parser)
     default_key = Settings().debug_image_key
     parser.add_argument(
-        "--debug-image-key", default=default_key, help=f"debug image key (default: {default_key})"
+        "--debug-image-key",
+        default=None,
+        help=f"debug image key, as run's (may hold {{stream}}) (default: the --settings "
+        f"file's, else {default_key})",
+    )
+    parser.add_argument("-s", "--settings", type=Path, metavar="FILE", help="run's settings")
+    parser.add_argument(
+        "--stream", metavar="NAME", help="one camera's image (default: every stream's)"
     )
     parser.add_argument(
         "--save", type=Path, default=None, metavar="PATH", help="write the latest JPEG to PATH"
