@@ -188,8 +188,10 @@ def test_a_wildcard_input_with_an_output_without_stream_is_refused(setting: str)
     flags[flags.index("--" + setting.replace("_", "-")) + 1] = "plain/" + setting
     result = run_cli("run", "--no-multicast-scouting", *flags, timeout=60)
     assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and setting in lines[0] and "{stream}" in lines[0], lines
+    error, named, *fixes = result.stderr.strip().splitlines()
+    assert "input_key = 'cams/*/image'" in error and "change 1 key(s)" in error
+    assert setting in named and "{stream}" in named, named
+    assert f'  {setting} = "cams/{{stream}}/plain/{setting}"' in fixes
 
 
 def test_echo_follows_every_streams_outputs(router: zenoh.Session, endpoint: str) -> None:
