@@ -410,6 +410,7 @@ def test_a_second_service_on_the_same_keys_is_reported_by_both(endpoint: str) ->
             fields = parse_pairs(OutputLines(proc).wait_for("event=another_service"))
             assert fields["level"] == "WARNING"
             assert fields["tag"] == "tag"
+            assert "--share-group" in fields["detail"]
 
 
 def test_run_warns_when_its_connect_endpoint_stays_unreachable(endpoint: str) -> None:

@@ -179,7 +179,8 @@ def test_an_idle_stream_is_forgotten_and_starts_afresh(
         assert cameras.answer()[:2] == ("cams/front/tag", 4)
         proc.send_signal(signal.SIGINT)
         output = proc.communicate(timeout=10)[0]
-    assert [e["stream"] for e in log_events(output, "stream_forgotten")] == ["cams/front/image"]
+    forgotten = log_events(output, "stream_forgotten")
+    assert [(e["name"], e["stream"]) for e in forgotten] == [("front", "cams/front/image")]
 
 
 @pytest.mark.parametrize("setting", ["tag_key", "record_key", "debug_image_key"])
@@ -283,9 +284,11 @@ def test_a_list_of_cameras_is_answered_each_on_its_own_keys(
         started = lines.wait_for("event=started")
         assert "input=cams/front/image,cams/rear/image" in started
         # a stats line per stream, as with a pattern
-        names: set[str] = set()
-        while names != {"cams/front/image", "cams/rear/image"}:
-            names.add(log_events(lines.wait_for("event=stream_stats"), "stream_stats")[0]["stream"])
+        names: set[tuple[str, str]] = set()
+        while len(names) < 2:  # each named as the README names it, and by its key
+            fields = log_events(lines.wait_for("event=stream_stats"), "stream_stats")[0]
+            names.add((fields["name"], fields["stream"]))
+        assert names == {("front", "cams/front/image"), ("rear", "cams/rear/image")}
 
 
 def test_a_list_of_cameras_that_overlap_is_refused_in_one_line() -> None:

@@ -144,6 +144,7 @@ def log_stats(status: dict[str, Any], *, per_stream: bool, input_key: str) -> No
         log.info(
             "event=stream_stats %s",
             kv(
+                name=stream["name"],
                 stream=stream["stream"],
                 received=frames["received"],
                 processed=frames["processed"],
