@@ -214,8 +214,12 @@ def test_demo_runs_camera_service_and_echo_in_one_command() -> None:
     truth = [line for line in lines if line.startswith("  truth:")]
     assert len(truth) == len(answers)  # every answer compared with the frame's truth
     assert all(" tags in view; read " in line and "; not read " in line for line in truth)
-    summary = lines[-1]
+    summary, opencv = lines[-2:]
     assert summary.startswith(f"demo: {len(answers)} of 12 frames answered"), summary
+    # the tag a rover steers by is never a look-alike; OpenCV's default on the same frames
+    # stands beside it
+    assert summary.endswith("0 selected (the tag a rover steers by) where no such tag is")
+    assert opencv.startswith(f"demo: OpenCV's default detector on the same {len(answers)} frames")
 
 
 def test_demo_camera_only_feeds_a_separate_service(endpoint: str) -> None:

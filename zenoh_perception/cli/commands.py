@@ -107,6 +107,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         camera_only=args.camera_only,
         limit=args.limit,
         shm=args.shm,
+        adversaries=args.adversaries,
         stop=stop_on_signals(),
     )
 
@@ -297,6 +298,13 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
         "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
+    )
+    group.add_argument(
+        "--adversaries",
+        action="store_true",
+        help="drive past synthetic adversaries instead of what a rover meets: an exact valid "
+        "code hidden in a blob, a glyph or a bare code, which no real camera shows (default: "
+        "keyboards, text, tiles, other families' markers)",
     )
 
 
