@@ -61,14 +61,23 @@ MAX_TRUTHS: Final = 64
 
 
 def drive_forever(
-    resolution: str, fps: float, dictionary: str, seed: int = 0, *, adversaries: bool = False
+    resolution: str,
+    fps: float,
+    dictionary: str,
+    seed: int = 0,
+    *,
+    adversaries: bool = False,
+    bands: Sequence[npt.NDArray[np.uint8]] | None = None,
 ) -> Iterator[Scene]:
     """Endless synthetic drives (a new drive with new tags every ``DRIVE_SECONDS``), past
-    what a rover meets (:mod:`~zenoh_perception.camera.surroundings`, a kind per drive), or
-    with ``adversaries`` past the generator's synthetic look-alikes instead."""
+    what a rover meets (``bands``: :func:`~zenoh_perception.camera.surroundings.layers`, one
+    a drive in turn; drawn here when None), or with ``adversaries`` past the generator's
+    synthetic look-alikes instead."""
     camera = CameraModel.named(resolution)
     generator = SceneGenerator(camera, dictionary=dictionary, seed=seed)
-    first = dictionary.split(",", maxsplit=1)[0].strip()
+    if not adversaries and bands is None:
+        first = dictionary.split(",", maxsplit=1)[0].strip()
+        bands = surroundings.layers(first, camera.width, camera.height, seed)
     for drive in itertools.count():
         # tags large enough to be read from most of the drive; the far ones are said to be;
         # at least one frame per drive: an empty drive would loop here for ever
@@ -79,11 +88,10 @@ def drive_forever(
             size_m=DEMO_TAG_SIZE_M,
             n_distractors=2 if adversaries else 0,
         )
-        if adversaries:
+        if not bands:
             yield from scenes
             continue
-        kind = surroundings.KINDS[drive % len(surroundings.KINDS)]
-        band = surroundings.layer(kind, first, camera.width, camera.height, seed + drive)
+        band = bands[drive % len(bands)]
         for scene in scenes:
             yield replace(scene, image=surroundings.composed(scene.image, band, scene.markers))
 
@@ -398,7 +406,12 @@ def main(
     check_frame_bytes(
         width * height * 4, settings.max_frame_bytes, f"a {resolution} BGRA demo frame"
     )
-    scenes = drive_forever(resolution, fps, settings.dictionary, adversaries=adversaries)
+    # what the rover passes, drawn before the service starts: too long to draw between frames
+    first = dictionary_names(settings.dictionary)[0]
+    bands = () if adversaries else surroundings.layers(first, width, height)
+    scenes = drive_forever(
+        resolution, fps, settings.dictionary, adversaries=adversaries, bands=bands
+    )
     # the truth of the frames put, by stamp, and what OpenCV's default read on them, until
     # their record is shown
     truths: dict[int, tuple[Scene, Agreement]] = {}

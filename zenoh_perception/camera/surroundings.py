@@ -41,6 +41,12 @@ def layer(kind: str, dictionary: str, width: int, height: int, seed: int) -> Ima
     return lookalike_frame(kind, dictionary, np.random.default_rng(seed), width, rows)
 
 
+def layers(dictionary: str, width: int, height: int, seed: int = 0) -> tuple[Image, ...]:
+    """One layer of each of :data:`KINDS`, in order (drawn once: up to a second each at
+    HD720, too long to draw between two frames)."""
+    return tuple(layer(kind, dictionary, width, height, seed) for kind in KINDS)
+
+
 def composed(image: Image, band: Image, markers: Sequence[MarkerTruth]) -> Image:
     """``image`` with ``band`` over its lower rows, but for the tags in view and their margin."""
     height = image.shape[0]
