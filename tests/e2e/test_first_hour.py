@@ -198,3 +198,40 @@ def test_several_machines_as_the_readme_says(cameras: Path) -> None:
             timeout=90,
             what="the other instance holding both cameras",
         )
+
+
+def _refusal(*flags: str) -> list[str]:
+    result = run(["run", "--no-multicast-scouting", *flags], REPO, timeout=60)
+    assert result.returncode == 2, result.stderr
+    return result.stderr.strip().splitlines()
+
+
+def test_a_wildcard_input_is_refused_once_with_every_key_and_a_command_that_starts() -> None:
+    lines = _refusal("--input-key", "rover/*/image")
+    assert "change 4 key(s)" in lines[0]
+    named = [line.split(" = ")[0].strip() for line in lines[1:5]]
+    assert named == ["tag_key", "record_key", "debug_image_key", "detections_key"]
+    # each key its own example, and the flags line starts the service as printed
+    flags = shlex.split(lines[6])
+    assert flags[:2] == ["--tag-key", "rover/{stream}/tag"]
+    assert "rover/{stream}/perception/tags" in flags
+    endpoint = loopback_endpoint()
+    argv = ["run", "--input-key", "rover/*/image", *flags, "--no-multicast-scouting"]
+    with started([*argv, "-l", endpoint], REPO) as (_, output):
+        begun = parse_pairs(output.wait_for("event=started", timeout=60))
+    # the compressed input followed the camera key, as image_transport names it
+    assert begun["compressed_input"] == "rover/*/image/compressed"
+
+
+def test_a_mistyped_placeholder_is_named_as_unknown() -> None:
+    (line,) = _refusal("--input-key", "rover/*/image", "--tag-key", "rover/{camera}/tag")
+    assert "unknown placeholder" in line and "'{camera}'" in line
+
+
+def test_a_concrete_compressed_key_beside_a_pattern_is_still_refused() -> None:
+    flags = ["--input-key", "rover/*/image", "--compressed-input-key", "zed/left/image/compressed"]
+    lines = _refusal(*flags)
+    assert any(
+        line.startswith("  compressed_input_key = 'zed/left/image/compressed'") for line in lines
+    )
+    assert "--compressed-input-key 'rover/*/image/compressed'" in lines[-6]

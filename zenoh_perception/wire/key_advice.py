@@ -62,8 +62,11 @@ def _prefix(entries: Sequence[str]) -> list[str]:
 def stream_example(inputs: Sequence[str], value: str) -> str:
     """``value`` as a stream's output key: the chunks the inputs share before the camera's
     name, then ``{stream}``, then ``value`` (``tag`` beside ``rover/*/image``:
-    ``rover/{stream}/tag``)."""
-    return "/".join([*_prefix(inputs), STREAM, value])
+    ``rover/{stream}/tag``; ``rover/tag`` too)."""
+    prefix, chunks = _prefix(inputs), value.split("/")
+    if chunks[: len(prefix)] == prefix and len(chunks) > len(prefix):
+        chunks = chunks[len(prefix) :]  # the shared chunks written already
+    return "/".join([*prefix, STREAM, *chunks])
 
 
 @dataclass(frozen=True, slots=True)
