@@ -38,8 +38,8 @@ def row(text: str, *first: str) -> list[str]:
 def joined(text: str, *first: str) -> list[str]:
     """The row whose first cells are ``first``, its cells gathered from each part of a table
     split to fit the width (each part repeats the first cell)."""
-    found = [r for r in rows(text) if r[: len(first)] == list(first)]
-    assert found, first
+    found = [r for r in rows(text) if r[0] == first[0]]
+    assert found and found[0][: len(first)] == list(first), (first, found)
     return [*found[0], *(cell for part in found[1:] for cell in part[1:])]
 
 
