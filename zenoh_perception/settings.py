@@ -47,6 +47,14 @@ from zenoh_perception.tags.geometry import (
     check_intrinsics,
 )
 from zenoh_perception.tags.selection import Metric, Policy
+from zenoh_perception.wire.key_advice import (
+    FOLLOWS_INPUT,
+    Change,
+    compressed_keys,
+    refusal,
+    stream_example,
+    unknown_placeholders,
+)
 from zenoh_perception.wire.rmw_zenoh import (
     DOMAIN_ID_MAX,
     is_namespace,
@@ -58,6 +66,7 @@ from zenoh_perception.wire.stream_keys import (
     STREAM,
     Keys,
     StreamNames,
+    any_stream_key,
     has_wildcard,
     key_entries,
     stream_key,
@@ -91,6 +100,10 @@ _ROS_PACKAGE: Final = re.compile(r"[a-z][a-z0-9]*(?:_[a-z0-9]+)*")
 TagSizes = tuple[tuple[int, float], ...]
 
 
+#: The ZED's left image, the camera the service reads unless told otherwise.
+DEFAULT_INPUT_KEY: Final = "zed/left/image"
+
+
 def _doc(text: str) -> dict[str, str]:
     return {"help": text}
 
@@ -101,17 +114,17 @@ class Settings:
 
     # Zenoh keys
     input_key: Keys = field(
-        default="zed/left/image",
+        default=DEFAULT_INPUT_KEY,
         metadata=_doc(
             "key of raw / sensor_msgs/Image CDR frames (a flag per key for several cameras); "
             "'' = off (compressed only)"
         ),
     )
     compressed_input_key: Keys = field(
-        default="zed/left/image/compressed",
+        default=FOLLOWS_INPUT,
         metadata=_doc(
             "key of sensor_msgs/CompressedImage CDR frames (JPEG, PNG; a flag per key for "
-            "several cameras); '' = off"
+            "several cameras); default: each input_key entry + '/compressed'; '' = off"
         ),
     )
     tag_key: str = field(default="tag", metadata=_doc("key of the StarterProjectTag CDR output"))
@@ -276,6 +289,8 @@ class Settings:
     def __post_init__(self) -> None:
         for name in KEY_LISTS:  # a list as a tuple; a list of one entry is that entry
             object.__setattr__(self, name, _key_list(name, getattr(self, name)))
+        if self.compressed_input_key == FOLLOWS_INPUT:  # image_transport's convention
+            object.__setattr__(self, "compressed_input_key", _compressed_by_convention(self))
         _validate(self)
         # the dictionaries as OpenCV spells them, whatever case they were given in
         object.__setattr__(self, "dictionary", ", ".join(dictionary_names(self.dictionary)))
@@ -462,11 +477,26 @@ def _stream_template(name: str, value: str) -> str:
 
 def _any_stream(value: str) -> str:
     """An output key with ``{stream}`` as the key expression of every stream's key."""
-    chunks = value.split("/")
-    return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in chunks)
+    return any_stream_key(value)
+
+
+def _validate_placeholders(settings: Settings) -> None:
+    unknown = [
+        f"{name} = {value!r} holds {', '.join(map(repr, found))}"
+        for name in (*KEY_LISTS, *_OUTPUT_KEYS, *_OPTIONAL_OUTPUT_KEYS, "liveliness_key")
+        for value in key_entries(getattr(settings, name))
+        if (found := unknown_placeholders(value))
+    ]
+    if unknown:
+        msg = (
+            f"unknown placeholder: {'; '.join(unknown)}; the only placeholder is {STREAM!r} "
+            "(each camera's name, in output keys)"
+        )
+        raise SettingsError(msg)
 
 
 def _validate_keys(settings: Settings) -> None:
+    _validate_placeholders(settings)
     for name in (*_OUTPUT_KEYS, "liveliness_key"):
         if not getattr(settings, name):
             msg = f"{name} must not be empty"
@@ -536,24 +566,24 @@ def _validate_keys(settings: Settings) -> None:
             raise SettingsError(msg)
         return
     streams = f"{several} = {_shown(getattr(settings, several))} {_why_several(settings, several)}"
+    changes: list[Change] = []
     # a concrete input beside several streams would be a stream named "" among the others
     for name in _FRAME_INPUTS:
         value = getattr(settings, name)
         if value and not StreamNames(value).several:
-            msg = (
-                f"{name} = {value!r} is one concrete key while {streams}: give it the same "
-                "wildcards or a list of the same cameras, or turn it off ('')"
-            )
-            raise SettingsError(msg)
+            why = "one concrete key beside several cameras: the same wildcards, a list, or ''"
+            example = compressed_keys(settings.input_key) if name != several else ""
+            changes.append(Change(name, value, why, example))
     # each stream answers on keys of its own; TF is one topic whose transforms each name
     # their camera's frame
+    cameras = settings.entries(several)
     for name in (*_OUTPUT_KEYS, *optional):
-        if name in _STREAM_KEYS and name != "tf_key" and STREAM not in getattr(settings, name):
-            msg = (
-                f"{name} = {getattr(settings, name)!r} must hold {STREAM!r}, as {streams}: "
-                f"each stream needs keys of its own (e.g. 'cams/{STREAM}/tag')"
-            )
-            raise SettingsError(msg)
+        value = getattr(settings, name)
+        if name in _STREAM_KEYS and name != "tf_key" and STREAM not in value:
+            why = f"must hold {STREAM!r}: each camera needs keys of its own"
+            changes.append(Change(name, value, why, stream_example(cameras, value)))
+    if changes:
+        raise SettingsError(refusal(streams, changes))
 
 
 def _why_several(settings: Settings, name: str) -> str:
@@ -817,6 +847,17 @@ def _coerce(f: Field[Any], value: object) -> object:
     raise SettingsError(msg)
 
 
+def _compressed_by_convention(settings: Settings) -> Keys:
+    """Each input_key entry plus ``/compressed``; with input_key off, the default camera's
+    (``input_key = ""`` alone: compressed frames only, on the ZED's compressed key)."""
+    return compressed_keys(settings.input_key or DEFAULT_INPUT_KEY)
+
+
+def _follows_input(settings: Settings) -> bool:
+    """Whether ``settings``' compressed input is its input_key's by convention."""
+    return settings.compressed_input_key == _compressed_by_convention(settings)
+
+
 def settings_from_mapping(
     values: Mapping[str, object], base: Settings | None = None, *, source: str = "settings"
 ) -> Settings:
@@ -832,9 +873,12 @@ def settings_from_mapping(
         ]
         msg = f"{source}: unknown setting(s) {', '.join(hints)}"
         raise SettingsError(msg)
+    base = base if base is not None else Settings()
     try:
         coerced = {name: _coerce(known[name], value) for name, value in values.items()}
-        return replace(base if base is not None else Settings(), **coerced)  # type: ignore[arg-type]
+        if _follows_input(base) and "compressed_input_key" not in coerced:
+            coerced["compressed_input_key"] = FOLLOWS_INPUT  # follows the new input_key
+        return replace(base, **coerced)  # type: ignore[arg-type]
     except SettingsError as err:
         msg = f"{source}: {err}"
         raise SettingsError(msg) from err

@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from collections import Counter
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ from zenoh_perception.files import read_text_file
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.image_header import image_header_size
 from zenoh_perception_bench.e2e import lockstep_images, record_detections
-from zenoh_perception_bench.goals import dataset_goals
+from zenoh_perception_bench.goals import LABELS_WRONG, dataset_goals
 from zenoh_perception_bench.plot import plot_dataset
 from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
 from zenoh_perception_bench.progress import Progress, tick
@@ -70,6 +71,11 @@ PICTURES: Final = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", "
 VIDEOS: Final = frozenset({".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v"})
 #: The placeholder ``--init`` writes for the ids to fill in; loading refuses it.
 ID_PLACEHOLDER: Final = "<id>"
+#: What ``--init`` writes for an item's dictionary: not a dictionary (``probe`` names it).
+DICTIONARY_PLACEHOLDER: Final = "<dictionary: zenoh-perception probe FILE names it>"
+#: The dictionary a negative keeping the placeholder is checked against (a negative is read
+#: in every dictionary the manifest's positives use, whatever its own says).
+_NEGATIVE_DICTIONARY: Final = "DICT_4X4_50"
 
 
 class DatasetError(PerceptionError):
@@ -238,8 +244,17 @@ def _item(raw: Any, index: int) -> Item:
     kind = fields.text("kind")
     if kind not in KINDS:
         raise fields.fail("kind", f"must be one of {', '.join(KINDS)}, not {_shown(kind)}")
+    written = fields.text("dictionary")
+    if written == DICTIONARY_PLACEHOLDER:
+        if raw.get("markers") != {}:
+            raise fields.fail(
+                "dictionary",
+                "is still the placeholder: `zenoh-perception probe FILE` names the markers' "
+                "dictionary (a negative, markers {}, may keep it)",
+            )
+        written = _NEGATIVE_DICTIONARY
     try:
-        dictionary = dictionary_name(fields.text("dictionary"))
+        dictionary = dictionary_name(written)
     except SettingsError as err:
         raise fields.fail("dictionary", str(err)) from err
     conditions = raw.get("conditions", [])
@@ -702,6 +717,8 @@ def main(args: argparse.Namespace, settings: Settings) -> int:
         finally:
             progress.close()
     print(format_dataset_report(report))
+    if any(g["note"] == LABELS_WRONG for g in report["goals"]):
+        print(f"zenoh-perception bench: {LABELS_WRONG}", file=sys.stderr)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2, default=_plain) + "\n", encoding="utf-8")
@@ -714,7 +731,7 @@ def _template(name: str, kind: str) -> dict[str, Any]:
     return {
         "name": name,
         "kind": kind,
-        "dictionary": "DICT_4X4_50",
+        "dictionary": DICTIONARY_PLACEHOLDER,
         "markers": {ID_PLACEHOLDER: 1},
         "unknown_markers": 0,
         "unsure": False,
@@ -776,7 +793,8 @@ def init_manifest(folder: Path) -> str:
     listed = ", ".join(f"{n} {k}{'s' if n > 1 else ''}" for k, n in sorted(kinds.items()))
     note = f" (skipped, same name as another: {', '.join(skipped)})" if skipped else ""
     return (
-        f"wrote {manifest}: {listed}{note}. Fill in each item's dictionary and markers"
+        f"wrote {manifest}: {listed}{note}. Fill in each item's dictionary (zenoh-perception "
+        f"probe {folder} names them) and markers"
         f' ({{"<id>": count}}, {{}} when none; docs/dataset.md), then run'
         f" zenoh-perception bench --dataset {manifest}"
     )

@@ -20,13 +20,17 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Final, TextIO
 
+import cv2
 import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from zenoh_perception.camera.shm import ShmPutter, announce
+from zenoh_perception.detect.opencv import aruco_detector, read_markers
+from zenoh_perception.detect.types import Detection, dictionary_names
 from zenoh_perception.errors import MessageDecodeError, PayloadTooLargeError, SettingsError
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service.node import PerceptionService
@@ -38,6 +42,7 @@ from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encod
 from zenoh_perception.wire.records import decode_record
 from zenoh_perception.wire.stream_keys import has_wildcard
 from zenoh_perception.wire.text import format_decoded_record
+from zenoh_perception_bench import surroundings
 from zenoh_perception_bench.scene import (
     CameraModel,
     DistractorTruth,
@@ -55,16 +60,40 @@ DEMO_TAG_SIZE_M: Final = (0.3, 0.45)
 MAX_TRUTHS: Final = 64
 
 
-def drive_forever(resolution: str, fps: float, dictionary: str, seed: int = 0) -> Iterator[Scene]:
-    """Endless synthetic drives (a new drive with new tags every ``DRIVE_SECONDS``)."""
+def drive_forever(
+    resolution: str,
+    fps: float,
+    dictionary: str,
+    seed: int = 0,
+    *,
+    adversaries: bool = False,
+    bands: Sequence[npt.NDArray[np.uint8]] | None = None,
+) -> Iterator[Scene]:
+    """Endless synthetic drives (a new drive with new tags every ``DRIVE_SECONDS``), past
+    what a rover meets (``bands``: :func:`~zenoh_perception_bench.surroundings.layers`, one
+    a drive in turn; drawn here when None), or with ``adversaries`` past the generator's
+    synthetic look-alikes instead."""
     camera = CameraModel.named(resolution)
     generator = SceneGenerator(camera, dictionary=dictionary, seed=seed)
-    for _ in itertools.count():
+    if not adversaries and bands is None:
+        first = dictionary.split(",", maxsplit=1)[0].strip()
+        bands = surroundings.layers(first, camera.width, camera.height, seed)
+    for drive in itertools.count():
         # tags large enough to be read from most of the drive; the far ones are said to be;
         # at least one frame per drive: an empty drive would loop here for ever
-        yield from generator.drive(
-            max(1, round(DRIVE_SECONDS * fps)), fps=fps, speed_mps=0.6, size_m=DEMO_TAG_SIZE_M
+        scenes = generator.drive(
+            max(1, round(DRIVE_SECONDS * fps)),
+            fps=fps,
+            speed_mps=0.6,
+            size_m=DEMO_TAG_SIZE_M,
+            n_distractors=2 if adversaries else 0,
         )
+        if not bands:
+            yield from scenes
+            continue
+        band = bands[drive % len(bands)]
+        for scene in scenes:
+            yield replace(scene, image=surroundings.composed(scene.image, band, scene.markers))
 
 
 def check_frame_bytes(size: int, max_frame_bytes: int, what: str) -> None:
@@ -98,6 +127,7 @@ class Agreement:
     not_read: tuple[tuple[int, str], ...]  # (id, why) of each tag in view that was not found
     false_ids: tuple[int, ...]  # ids reported where no such tag is
     on_lookalikes: tuple[int, ...] = ()  # those of them read on the scene's look-alikes
+    selected_false: bool = False  # the selected tag, what a rover steers by, is a false id
 
     @staticmethod
     def why_not_read(marker: MarkerTruth) -> str:
@@ -148,7 +178,17 @@ def agreement(
         if m.visible and i not in matched
     )
     in_view = sum(m.visible for m in markers)
-    return Agreement(in_view, tuple(read), not_read, tuple(false_ids), tuple(lookalikes))
+    chosen = record.get("selected") or {}
+    chosen_id = int(chosen.get("tag_id", -1))
+    selected_false = chosen_id >= 0 and not any(
+        m.tag_id == chosen_id
+        and _near(m, float(chosen["x_tag_center_pixel"]), float(chosen["y_tag_center_pixel"]))
+        is not None
+        for m in markers
+    )
+    return Agreement(
+        in_view, tuple(read), not_read, tuple(false_ids), tuple(lookalikes), selected_false
+    )
 
 
 _WHY: Final = {
@@ -186,6 +226,9 @@ class Summary:
     not_read: Counter[str] = field(default_factory=Counter)
     false_ids: int = 0
     on_lookalikes: int = 0
+    selected_false: int = 0  # frames whose selected tag was a false id
+    #: OpenCV's default detector on the same frames, selecting by the same policy
+    opencv: Summary | None = None
 
     def add(self, result: Agreement) -> None:
         self.frames += 1
@@ -194,6 +237,7 @@ class Summary:
         self.not_read.update(why for _tag_id, why in result.not_read)
         self.false_ids += len(result.false_ids)
         self.on_lookalikes += len(result.on_lookalikes)
+        self.selected_false += result.selected_false
 
     def format(self, sent: int) -> str:
         share = f" ({100 * self.read / self.in_view:.0f} %)" if self.in_view else ""
@@ -202,7 +246,19 @@ class Summary:
             f"demo: {self.frames} of {sent} frames answered (the newest frame wins: a busy "
             f"machine skips some); {self.in_view} tags in view, {self.read} read{share}, "
             f"{sum(self.not_read.values())} not read{f' ({reasons})' if reasons else ''}; "
-            f"{self.false_ids} false ids{self._lookalike_note()}"
+            f"{self.false_ids} false ids{self._lookalike_note()}, "
+            f"{self.selected_false} selected (the tag a rover steers by) where no such tag is"
+            + self._opencv_line()
+        )
+
+    def _opencv_line(self) -> str:
+        if self.opencv is None:
+            return ""
+        o = self.opencv
+        return (
+            f"\ndemo: OpenCV's default detector on the same {o.frames} frames: {o.read} read, "
+            f"{o.false_ids} false ids, {o.selected_false} selected where no such tag is "
+            "(what the service's checks veto)"
         )
 
     def _lookalike_note(self) -> str:
@@ -212,6 +268,40 @@ class Summary:
             f" ({self.on_lookalikes} on the scene's look-alikes: shapes that carry a valid "
             "code, which OpenCV's decoder accepts)"
         )
+
+
+class OpenCvDefault:
+    """OpenCV's ArUco detector with its default parameters, reading the demo's frames as a
+    record would report them (the selected tag by the service's policy: the largest for
+    ``closest``, the nearest the centre for ``center``)."""
+
+    def __init__(self, settings: Settings) -> None:
+        self._dictionaries = tuple(dictionary_names(settings.dictionary))
+        self._detector = aruco_detector(self._dictionaries, cv2.aruco.DetectorParameters())
+        self._centre = settings.policy == "center"
+
+    def record(self, image: npt.NDArray[np.uint8]) -> dict[str, Any]:
+        grey = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+        found, _ = read_markers(self._detector, grey, self._dictionaries)
+        tags = [_tag_fields(d) for d in found]
+        if not tags:
+            return {"tags": [], "selected": None}
+        height, width = grey.shape
+
+        def rank(pair: tuple[Detection, dict[str, Any]]) -> float:
+            detection, tag = pair
+            if self._centre:
+                x, y = tag["x_tag_center_pixel"], tag["y_tag_center_pixel"]
+                return float(np.hypot(x - width / 2, y - height / 2))
+            return -float(cv2.contourArea(detection.corners))
+
+        _, chosen = min(zip(found, tags, strict=True), key=rank)
+        return {"tags": tags, "selected": chosen}
+
+
+def _tag_fields(detection: Detection) -> dict[str, Any]:
+    x, y = detection.corners.mean(axis=0)
+    return {"tag_id": detection.tag_id, "x_tag_center_pixel": x, "y_tag_center_pixel": y}
 
 
 def publish_camera(
@@ -286,6 +376,7 @@ def main(
     camera_only: bool = False,
     limit: int = 0,
     shm: bool = False,
+    adversaries: bool = False,
     stop: threading.Event | None = None,
     out: TextIO = sys.stdout,
 ) -> int:
@@ -315,14 +406,23 @@ def main(
     check_frame_bytes(
         width * height * 4, settings.max_frame_bytes, f"a {resolution} BGRA demo frame"
     )
-    scenes = drive_forever(resolution, fps, settings.dictionary)
-    # the truth of the frames put, by stamp, until their record is shown
-    truths: dict[int, Scene] = {}
+    # what the rover passes, drawn before the service starts: too long to draw between frames
+    first = dictionary_names(settings.dictionary)[0]
+    bands = () if adversaries else surroundings.layers(first, width, height)
+    scenes = drive_forever(
+        resolution, fps, settings.dictionary, adversaries=adversaries, bands=bands
+    )
+    # the truth of the frames put, by stamp, and what OpenCV's default read on them, until
+    # their record is shown
+    truths: dict[int, tuple[Scene, Agreement]] = {}
     lock = threading.Lock()
+    opencv = None if camera_only else OpenCvDefault(settings)
 
     def remember(stamp_ns: int, scene: Scene) -> None:
+        assert opencv is not None  # remembered only beside the service
+        baseline = agreement(opencv.record(scene.image), scene.markers, scene.distractors)
         with lock:
-            truths[stamp_ns] = scene
+            truths[stamp_ns] = (scene, baseline)
             while len(truths) > MAX_TRUTHS:
                 del truths[next(iter(truths))]
 
@@ -346,7 +446,7 @@ def main(
             camera()
             return 0
 
-        summary = Summary()
+        summary = Summary(opencv=Summary())
         skipped = Skipped()
 
         def show(sample: zenoh.Sample) -> None:
@@ -359,12 +459,15 @@ def main(
                     print(line, file=out, flush=True)
                 return
             with lock:
-                scene = truths.pop(int(record["stamp_ns"]), None)
+                truth = truths.pop(int(record["stamp_ns"]), None)
             lines = [format_decoded_record(str(sample.key_expr), record, as_json=False)]
-            if scene is not None:
+            if truth is not None:
+                scene, baseline = truth
                 result = agreement(record, scene.markers, scene.distractors)
                 with lock:
                     summary.add(result)
+                    if summary.opencv is not None:  # paired: the frames the service answered
+                        summary.opencv.add(baseline)
                 lines.append(format_agreement(result, scene.markers))
             print("\n".join(lines), file=out, flush=True)
 

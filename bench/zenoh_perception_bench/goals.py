@@ -240,16 +240,20 @@ def dataset_goals(report: dict[str, Any]) -> list[dict[str, Any]]:
     }
     for t in total.values():
         t["share_found"] = t["found"] / t["labelled"] if t["labelled"] else None
-    add(
-        goal(
-            "every tag OpenCV default finds, the service finds (per item and id)",
-            lost_count,
-            "== 0",
-            lost_count == 0,
-            f"lost on {_listed(where)}" if where else "",
-        ),
-        both(total),
-    )
+    if positives:
+        add(
+            goal(
+                "every tag OpenCV default finds, the service finds (per item and id)",
+                lost_count,
+                "== 0",
+                lost_count == 0,
+                f"lost on {_listed(where)}" if where else "",
+            ),
+            both(total),
+        )
+        labels_row = _labels_goal(positives)
+        if labels_row is not None:
+            rows.append(labels_row)
     # against the labels: no false id where the labels are sure
     negatives = [i for i in items if i["negative"]]
     if negatives:
@@ -269,6 +273,8 @@ def dataset_goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             for bucket in BUCKETS:
                 found = group["service"]["buckets"][bucket]
                 base = group["opencv"]["buckets"][bucket]
+                if found == base == 0:
+                    continue  # no marker of this size: nothing to pass on
                 add(
                     goal(
                         f"stills {bucket}: found >= OpenCV default",
@@ -337,6 +343,37 @@ def dataset_goals(report: dict[str, Any]) -> list[dict[str, Any]]:
             "-",
         )
     return rows
+
+
+#: The share of the labelled markers some detector must find for the labels to be believed.
+LABELS_FOUND_SHARE: Final = 0.5
+#: What a run in which most labelled markers are found by no detector says.
+LABELS_WRONG: Final = (
+    "most labelled markers are found by no detector: the labels or the dictionary are "
+    "probably wrong (zenoh-perception probe names the dictionary)"
+)
+
+
+def _labels_goal(positives: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Whether the detector that finds most finds most of the labelled markers (None with no
+    labelled marker): when none does, the labels are the likelier fault."""
+    labelled = sum(i["service"]["labelled"] for i in positives)
+    if not labelled:
+        return None
+    who = [
+        w for w in positives[0] if isinstance(positives[0][w], dict) and "found" in positives[0][w]
+    ]
+    best = max(sum(i[w]["found"] for i in positives) for w in who)
+    share = best / labelled
+    row = goal(
+        "labelled markers found by the detector that finds most (share)",
+        rounded(share, 3),
+        f">= {LABELS_FOUND_SHARE}",
+        share >= LABELS_FOUND_SHARE,
+        "" if share >= LABELS_FOUND_SHARE else LABELS_WRONG,
+    )
+    row["labels"] = f"{best}/{labelled} labelled markers"
+    return row
 
 
 def lookalike_goals(report: dict[str, Any]) -> list[dict[str, Any]]:

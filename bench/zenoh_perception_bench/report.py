@@ -2,21 +2,68 @@
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Final
 
 from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR
 from zenoh_perception_bench.runners import BEST, BEST_SETTING, PAIR, SHOWN
 from zenoh_perception_bench.scoring import BUCKETS
 
+#: Columns a report line fits in (the dataset bench's).
+REPORT_WIDTH: Final = 120
+
 
 def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     """Left-aligned columns under their headers and a rule."""
-    widths = [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(headers)]
+    widths = _widths(headers, rows)
     line = "  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True))
     out = [line, "  ".join("-" * w for w in widths)]
     out += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join(line.rstrip() for line in out)
+
+
+def _widths(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> list[int]:
+    return [max([len(h), *(len(r[i]) for r in rows)]) for i, h in enumerate(headers)]
+
+
+def narrow_table(
+    headers: Sequence[str], rows: Sequence[Sequence[str]], width: int = REPORT_WIDTH
+) -> str:
+    """:func:`table` within ``width`` columns: split into tables that each repeat the first
+    column, or, where one column alone is too wide, one row at a time, a column a line."""
+    widths = _widths(headers, rows)
+    if sum(widths) + 2 * (len(widths) - 1) <= width:
+        return table(headers, rows)
+    chunks: list[list[int]] = [[]]
+    for i in range(1, len(headers)):
+        if widths[0] + sum(widths[j] + 2 for j in [*chunks[-1], i]) > width and chunks[-1]:
+            chunks.append([])
+        chunks[-1].append(i)
+    if all(widths[0] + sum(widths[j] + 2 for j in chunk) <= width for chunk in chunks):
+        return "\n\n".join(
+            table(
+                [headers[0], *(headers[j] for j in chunk)],
+                [[r[0], *(r[j] for j in chunk)] for r in rows],
+            )
+            for chunk in chunks
+        )
+    out: list[str] = []
+    for row in rows:
+        out += textwrap.wrap(row[0], width, subsequent_indent="    ") or ["-"]
+        for header, cell in zip(headers[1:], row[1:], strict=True):
+            out += textwrap.wrap(
+                f"{header}: {cell}", width, initial_indent="  ", subsequent_indent="    "
+            )
     return "\n".join(out)
+
+
+def fit(text: str, width: int = REPORT_WIDTH) -> str:
+    """``text`` with each line longer than ``width`` wrapped (prose: tables are narrowed)."""
+    return "\n".join(
+        line if len(line) <= width else textwrap.fill(line, width, subsequent_indent="  ")
+        for line in text.splitlines()
+    )
 
 
 def fmt(value: Any, spec: str = ".2f") -> str:
@@ -306,7 +353,7 @@ def format_dataset_report(report: dict[str, Any]) -> str:
     if e2e:
         parts.append(e2e)
     parts.append(_dataset_goals(report["goals"]))
-    return "\n\n".join(parts)
+    return fit("\n\n".join(parts))
 
 
 def _pct(summary: dict[str, Any]) -> str:
@@ -376,7 +423,7 @@ def _totals(report: dict[str, Any]) -> str:
         f"Totals ({legend}; found = labelled markers reported, on video"
         " id-frames; false = ids the labels do not hold; unverified = ids of markers seen but"
         " not read; ms = mean per frame)\n"
-        + table(["group", "frames", "labelled", *_side_headers(names)], rows)
+        + narrow_table(["group", "frames", "labelled", *_side_headers(names)], rows)
     )
 
 
@@ -387,7 +434,7 @@ def _dictionaries(report: dict[str, Any]) -> str:
         for name, d in report["dictionaries"].items()
     ]
     legend = "; o/b/s as in the totals" if names == SHOWN else ""
-    return f"By dictionary (every item read in it, negatives included{legend})\n" + table(
+    return f"By dictionary (every item read in it, negatives included{legend})\n" + narrow_table(
         ["dictionary", "frames", "labelled", *_side_headers(names)], rows
     )
 
@@ -405,7 +452,7 @@ def _sizes(report: dict[str, Any]) -> str:
         ]
         for bucket in BUCKETS
     ]
-    return "By marker size (mean side; o/s = OpenCV default / service)\n" + table(
+    return "By marker size (mean side; o/s = OpenCV default / service)\n" + narrow_table(
         ["size", "stills found o/s", "video id-frames found o/s", "false ids o/s (all)"], rows
     )
 
@@ -478,7 +525,7 @@ def _items(report: dict[str, Any]) -> str:
     ]
     return (
         "Items (o/s = OpenCV default / service; a negative in one row over every dictionary"
-        " it was read in, frames per dictionary)\n" + table(headers, rows)
+        " it was read in, frames per dictionary)\n" + narrow_table(headers, rows)
     )
 
 
@@ -497,20 +544,14 @@ def _hints(report: dict[str, Any]) -> str | None:
 
 
 def _dataset_goals(goals: Sequence[dict[str, Any]]) -> str:
-    rows = [
-        [
-            g["goal"],
-            str(g["value"]),
-            g["threshold"],
-            "PASS" if g["pass"] else "FAIL",
-            g.get("labels", ""),
-            g["note"],
-        ]
-        for g in goals
-    ]
-    return "Goals (against OpenCV's default, and the same figures against the labels)\n" + table(
-        ["goal", "value", "threshold", "result", "against the labels", "note"], rows
-    )
+    """One line per goal (result, goal, value, threshold), then its figures against the
+    labels and its note, each on a line of its own: the rows fit the report's width."""
+    lines = ["Goals (against OpenCV's default, and the same figures against the labels)"]
+    for g in goals:
+        result = "PASS" if g["pass"] else "FAIL"
+        lines.append(f"{result}  {g['goal']}: {g['value']} ({g['threshold']})")
+        lines += [f"      {text}" for text in (g.get("labels", ""), g["note"]) if text]
+    return "\n".join(lines)
 
 
 def _dataset_end_to_end(report: dict[str, Any]) -> str | None:
@@ -550,5 +591,5 @@ def _dataset_end_to_end(report: dict[str, Any]) -> str | None:
     ]
     return (
         "Videos end to end (lockstep through service processes; own = mean e2e - floor)\n"
-        + table(headers, rows)
+        + narrow_table(headers, rows)
     )

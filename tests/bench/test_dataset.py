@@ -26,6 +26,7 @@ from zenoh_perception.cli import main as cli
 from zenoh_perception.settings import Settings
 from zenoh_perception_bench import dataset
 from zenoh_perception_bench.dataset import (
+    DICTIONARY_PLACEHOLDER,
     DatasetError,
     Item,
     evaluate,
@@ -487,11 +488,20 @@ def test_init_writes_a_manifest_to_fill_in_and_never_overwrites(tmp_path: Path) 
         ("walk", "sequence"),
     ]
     assert all(i["markers"] == {"<id>": 1} for i in written["items"])
+    # the dictionary too is a placeholder, not an answer: probe names it
+    assert all(i["dictionary"] == DICTIONARY_PLACEHOLDER for i in written["items"])
+    assert "zenoh-perception probe" in run.stdout
     # never overwritten
     before = manifest.read_bytes()
     assert "already exists" in one_line_error(bench("--init", str(tmp_path)))
     assert manifest.read_bytes() == before
     # left unfilled, the bench says which field of which item to fill in
+    line = one_line_error(bench(str(manifest)))
+    assert "item 0 (desk): field dictionary: is still the placeholder" in line
+    for item in written["items"]:
+        if item["name"] != "empty":  # a negative may keep it
+            item["dictionary"] = "DICT_4X4_50"
+    manifest.write_text(json.dumps(written), encoding="utf-8")
     line = one_line_error(bench(str(manifest)))
     assert "item 0 (desk): field markers: '<id>' is not a marker id" in line
     # filled in: the bench reads the folder itself (no data/ beside the manifest)
@@ -509,6 +519,27 @@ def test_init_writes_a_manifest_to_fill_in_and_never_overwrites(tmp_path: Path) 
             cli_command("bench", "--dataset"), capture_output=True, text=True, check=False
         )
     )
+
+
+def test_a_wrong_dictionary_fails_saying_the_labels_are_probably_wrong(tmp_path: Path) -> None:
+    # 4X4 markers labelled as 6X6 ones (what probe would have named, a user did not ask)
+    write_still(tmp_path, "desk.png", [(3, 120), (7, 100)])
+    write_still(tmp_path, "shelf.png", [(5, 110)])
+    manifest = manifest_in(
+        tmp_path,
+        {"name": "desk", "kind": "image", "dictionary": "DICT_6X6_50", "markers": {"3": 1, "7": 1}},
+        {"name": "shelf", "kind": "image", "dictionary": "DICT_6X6_50", "markers": {"5": 1}},
+    )
+    out = tmp_path / "r.json"
+    run = bench(str(manifest), "--json", str(out))
+    assert run.returncode == 1, run.stdout + run.stderr
+    assert "the labels or the dictionary are probably wrong" in run.stderr
+    goals = json.loads(out.read_text(encoding="utf-8"))["goals"]
+    (labels,) = [g for g in goals if g["goal"].startswith("labelled markers found")]
+    assert (labels["value"], labels["pass"]) == (0.0, False)
+    # no row passes on nothing: no size bin without a marker is listed
+    assert not [g for g in goals if " px: " in g["goal"] and g["value"] == 0 and g["pass"]]
+    assert max(len(line) for line in run.stdout.splitlines()) <= 120
 
 
 def test_the_plot_has_a_row_per_item_in_both_colours(tmp_path: Path) -> None:
@@ -544,7 +575,10 @@ def test_hints_say_which_family_or_flip_would_have_found_something(tmp_path: Pat
     )
     out = tmp_path / "r.json"
     run = bench(str(manifest), "--json", str(out))
-    assert run.returncode == 0, run.stderr  # OpenCV found nothing either: nothing lost
+    # OpenCV found nothing either: nothing lost; but no detector found the labelled markers,
+    # so the labels or the dictionary are probably wrong: the run fails, saying so
+    assert run.returncode == 1, run.stderr
+    assert "the labels or the dictionary are probably wrong" in run.stderr
     hints = {i["name"]: i["hint"] for i in json.loads(out.read_text(encoding="utf-8"))["items"]}
     assert "DICT_6X6_1000 finds ids 4" in hints["six"]
     assert "DICT_4X4_1000 flipped left to right finds ids 3" in hints["flip"]

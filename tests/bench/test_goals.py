@@ -108,8 +108,10 @@ def test_a_tag_lost_against_opencv_fails_id_by_id() -> None:
     assert lost_tags(swapped) == {"7": 1}
     assert lost_tags(_item("ok", {"3": 1}, {"3": 1, "7": 1})) == {}
     report = {"groups": {}, "items": [swapped], "settings": {"detector": "tracking"}}
-    (lost, sure) = dataset_goals(report)
+    (lost, labels, sure) = dataset_goals(report)
     assert (lost["value"], lost["pass"]) == (1, False)
+    # half the labelled markers found: the labels are believed (a share of 0.5 passes)
+    assert (labels["value"], labels["pass"]) == (0.5, True)
     assert lost["note"] == "lost on desk id 7"
     assert lost["labels"] == "service 2/4 (50.0 %), OpenCV 2/4 (50.0 %)"
     assert sure["goal"] == "sure positives: unlabelled ids (service)" and sure["pass"]

@@ -4,6 +4,7 @@ the truth of the frame it answers."""
 from __future__ import annotations
 
 import io
+import itertools
 import re
 import threading
 from dataclasses import replace
@@ -79,6 +80,51 @@ def test_a_false_id_on_a_look_alike_is_named_and_the_summary_adds_up() -> None:
     text = summary.format(sent=3)
     assert text.startswith("demo: 2 of 3 frames answered")
     assert "1 false ids (1 on the scene's look-alikes" in text
+
+
+def test_a_selected_false_id_is_counted_as_what_a_rover_would_steer_by() -> None:
+    scene = SceneGenerator(
+        CameraModel.named("VGA"), seed=1, effects=Effects.clean()
+    ).scene_from_poses([MarkerPose(3, 0.2, (-0.3, 0.0, 1.5))])
+    three = scene.markers[0].corner_mean
+    true_tag, false_tag = _tag(3, three[0], three[1]), _tag(7, 10.0, 10.0)
+    steered_right = agreement({"tags": [true_tag, false_tag], "selected": true_tag}, scene.markers)
+    steered_wrong = agreement({"tags": [true_tag, false_tag], "selected": false_tag}, scene.markers)
+    none = agreement({"tags": [], "selected": {**false_tag, "tag_id": -1}}, scene.markers)
+    assert (steered_right.selected_false, steered_wrong.selected_false) == (False, True)
+    assert not none.selected_false
+    summary = Summary(opencv=Summary())
+    summary.add(steered_right)
+    assert summary.opencv is not None
+    summary.opencv.add(steered_wrong)
+    text = summary.format(sent=1)
+    assert "0 selected (the tag a rover steers by) where no such tag is" in text
+    assert text.splitlines()[1] == (
+        "demo: OpenCV's default detector on the same 1 frames: 1 read, 1 false ids, "
+        "1 selected where no such tag is (what the service's checks veto)"
+    )
+
+
+def test_the_default_drive_passes_what_a_rover_meets_and_adversaries_need_a_flag() -> None:
+    everyday = list(itertools.islice(demo.drive_forever("VGA", 15.0, "DICT_4X4_50"), 3))
+    assert all(scene.distractors == () for scene in everyday)
+    # the lower band is the surroundings' layer, not the generator's ground
+    plain = next(iter(SceneGenerator(CameraModel.named("VGA"), dictionary="DICT_4X4_50").drive(1)))
+    assert not np.array_equal(everyday[0].image[-50:], plain.image[-50:])
+    adversaries = demo.drive_forever("VGA", 15.0, "DICT_4X4_50", adversaries=True)
+    assert any(scene.distractors for scene in itertools.islice(adversaries, 3))
+
+
+def test_opencv_default_reads_what_the_service_would_be_compared_with() -> None:
+    scene = SceneGenerator(
+        CameraModel.named("VGA"), seed=1, effects=Effects.clean()
+    ).scene_from_poses([MarkerPose(3, 0.2, (-0.3, 0.0, 1.5)), MarkerPose(9, 0.1, (0.3, 0.0, 2.0))])
+    record = demo.OpenCvDefault(Settings()).record(scene.image)
+    assert sorted(t["tag_id"] for t in record["tags"]) == [3, 9]
+    assert record["selected"]["tag_id"] == 3  # the largest: the closest
+    result = agreement(record, scene.markers)
+    assert sorted(tag_id for tag_id, _ in result.read) == [3, 9]
+    assert not result.selected_false
 
 
 def _answers(printed: io.StringIO) -> list[tuple[dict[str, str], str]]:

@@ -31,11 +31,19 @@ def test_a_mistyped_flag_names_the_closest_one(
     with pytest.raises(SystemExit) as exit_info:
         cli.main(argv)
     assert exit_info.value.code == 2
+    (line,) = capsys.readouterr().err.splitlines()  # the suggestion first, no usage dump
+    assert line.startswith(f"zenoh-perception {argv[0]}: error: {hint} (unrecognized arguments")
+
+
+def test_an_unknown_flag_without_a_close_one_shows_the_subcommands_usage(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["run", "--zzzzzzzz"])
+    assert exit_info.value.code == 2
     err = capsys.readouterr().err
-    assert hint in err
-    # the usage shown is the subcommand's, not the top-level one
-    assert err.startswith(f"usage: zenoh-perception {argv[0]} ")
-    assert f"zenoh-perception {argv[0]}: error: unrecognized arguments" in err
+    assert err.startswith("usage: zenoh-perception run ")
+    assert "zenoh-perception run: error: unrecognized arguments: --zzzzzzzz" in err
 
 
 @pytest.fixture(autouse=True)
@@ -54,6 +62,7 @@ def test_the_subcommands() -> None:
     assert _subcommands() == {
         *("run", "demo", "echo", "status", "replay", "probe", "bench", "view"),
         "bridge-config",
+        "router",
     }
 
 

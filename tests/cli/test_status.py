@@ -21,7 +21,7 @@ def test_the_status_of_a_running_service_is_printed_as_json(endpoint: str) -> No
         code = status.main(loopback_config(connect=[endpoint]), timeout=2.0, out=out)
         zid = str(session.zid())
     assert code == 0
-    (reply,) = json_objects(out.getvalue())
+    (reply,) = json.loads(out.getvalue())  # one document: an array of services
     assert (reply["service"], reply["zid"]) == ("zenoh-perception", zid)
     assert reply["settings"] == json.loads(json.dumps(settings.as_dict()))
     assert reply["frames"] == {"received": 0, "processed": 0, "dropped": 0, "rejected": 0}
@@ -36,6 +36,17 @@ def test_another_status_key(endpoint: str) -> None:
     (reply,) = json_objects(out.getvalue())
     assert reply["settings"] == json.loads(json.dumps(settings.as_dict()))
     assert settings.status_key == "rover/perception/status"
+
+
+def test_lines_prints_one_compact_object_per_line(endpoint: str) -> None:
+    settings = Settings(stats_interval_s=0.0)
+    with open_session(listen=[endpoint]) as session, PerceptionService(session, settings):
+        out = io.StringIO()
+        code = status.main(loopback_config(connect=[endpoint]), timeout=2.0, lines=True, out=out)
+        zid = str(session.zid())
+    assert code == 0
+    (line,) = out.getvalue().splitlines()
+    assert json.loads(line)["zid"] == zid
 
 
 def test_exit_1_naming_the_key_when_no_service_answers(

@@ -8,7 +8,7 @@ import queue
 import signal
 import subprocess
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from tests.camera.recordings import (
     write_video,
 )
 from tests.helpers import (
+    STREAMS,
     Collector,
     OutputLines,
     log_events,
@@ -358,3 +359,33 @@ def test_cli_image_folder_says_which_files_it_leaves_out(tmp_path: Path, endpoin
             assert proc.wait(timeout=REPLAY_TIMEOUT_S) == 0
     assert skipped["count"] == "2" and skipped["files"] == "drive.mp4,notes.txt"
     assert len(got) == N_FRAMES  # the images are replayed all the same
+
+
+def test_a_camera_nobody_reads_is_told_what_the_services_read(
+    tmp_path: Path, endpoint: str
+) -> None:
+    folder = tmp_path / "images"
+    write_images(folder)
+    settings = replace(STREAMS, input_key="rover/*/image")
+    with (
+        open_session(listen=[endpoint]) as service_side,
+        PerceptionService(service_side, settings),
+    ):
+        args = _replay_args(folder, endpoint, "--key", "rover/front/camera/image")
+        with running_cli(*args) as proc:
+            lines = OutputLines(proc)
+            for _ in range(2):  # said again while it waits, at a limited rate
+                fields = parse_pairs(lines.wait_for("event=replay_waiting", timeout=60))
+                assert fields["services"] == "1"
+                assert "rover/*/image" in fields["their_inputs"].split(",")
+                assert "'*' matches one chunk" in fields["detail"]
+            assert proc.poll() is None  # still waiting
+
+
+def test_a_camera_with_no_service_anywhere_says_so(tmp_path: Path, endpoint: str) -> None:
+    folder = tmp_path / "images"
+    write_images(folder)
+    with running_cli(*_replay_args(folder, endpoint)) as proc:
+        fields = parse_pairs(OutputLines(proc).wait_for("event=replay_waiting", timeout=60))
+    assert fields["services"] == "0"
+    assert "no perception service answered" in fields["detail"]

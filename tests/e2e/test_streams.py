@@ -179,7 +179,8 @@ def test_an_idle_stream_is_forgotten_and_starts_afresh(
         assert cameras.answer()[:2] == ("cams/front/tag", 4)
         proc.send_signal(signal.SIGINT)
         output = proc.communicate(timeout=10)[0]
-    assert [e["stream"] for e in log_events(output, "stream_forgotten")] == ["cams/front/image"]
+    forgotten = log_events(output, "stream_forgotten")
+    assert [(e["name"], e["stream"]) for e in forgotten] == [("front", "cams/front/image")]
 
 
 @pytest.mark.parametrize("setting", ["tag_key", "record_key", "debug_image_key"])
@@ -188,8 +189,10 @@ def test_a_wildcard_input_with_an_output_without_stream_is_refused(setting: str)
     flags[flags.index("--" + setting.replace("_", "-")) + 1] = "plain/" + setting
     result = run_cli("run", "--no-multicast-scouting", *flags, timeout=60)
     assert result.returncode == 2, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and setting in lines[0] and "{stream}" in lines[0], lines
+    error, named, *fixes = result.stderr.strip().splitlines()
+    assert "input_key = 'cams/*/image'" in error and "change 1 key(s)" in error
+    assert setting in named and "{stream}" in named, named
+    assert f'  {setting} = "cams/{{stream}}/plain/{setting}"' in fixes
 
 
 def test_echo_follows_every_streams_outputs(router: zenoh.Session, endpoint: str) -> None:
@@ -281,9 +284,11 @@ def test_a_list_of_cameras_is_answered_each_on_its_own_keys(
         started = lines.wait_for("event=started")
         assert "input=cams/front/image,cams/rear/image" in started
         # a stats line per stream, as with a pattern
-        names: set[str] = set()
-        while names != {"cams/front/image", "cams/rear/image"}:
-            names.add(log_events(lines.wait_for("event=stream_stats"), "stream_stats")[0]["stream"])
+        names: set[tuple[str, str]] = set()
+        while len(names) < 2:  # each named as the README names it, and by its key
+            fields = log_events(lines.wait_for("event=stream_stats"), "stream_stats")[0]
+            names.add((fields["name"], fields["stream"]))
+        assert names == {("front", "cams/front/image"), ("rear", "cams/rear/image")}
 
 
 def test_a_list_of_cameras_that_overlap_is_refused_in_one_line() -> None:

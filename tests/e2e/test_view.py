@@ -99,3 +99,37 @@ def test_view_that_cannot_write_its_file_is_one_line_and_exit_2(
     assert [line for line in output if "error" in line] == [output[-1]]
     assert str(missing) in output[-1]
     assert "--save" in output[-1]
+
+
+def test_view_with_nothing_arriving_exits_1_naming_the_key(tmp_path: Path) -> None:
+    out = tmp_path / "never.jpg"
+    args = ("--no-multicast-scouting", "--save", str(out), "--timeout", "0.5")
+    result = run_cli("view", *args, "--debug-image-key", "rover/{stream}/debug", timeout=60)
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert "'rover/**/debug'" in line and "--stream" in line
+    assert not out.exists()
+
+
+def test_view_stream_watches_one_camera_of_runs_stream_keys(tmp_path: Path, endpoint: str) -> None:
+    out = tmp_path / "front.jpg"
+    template = "rover/{stream}/perception/debug/image/compressed"
+    with open_session(listen=[endpoint]) as service:
+        front = service.declare_publisher(template.replace("{stream}", "front"))
+        rear = service.declare_publisher(template.replace("{stream}", "rear"))
+        args = ("view", "-e", endpoint, "--no-multicast-scouting", "--save", str(out))
+        with running_cli(*args, "--debug-image-key", template, "--stream", "front") as proc:
+            lines = OutputLines(proc)
+            matched(front, timeout=30)
+            rear.put(_image(32, 24, (0, 0, 255)))  # another camera's: not watched
+            front.put(_image(64, 48, (0, 255, 0)))
+            assert _saved(lines.wait_for("saved", timeout=30)) == (64, 48)
+            status: object = rear.matching_status  # a MatchingStatus, whatever the stub says
+            assert not getattr(status, "matching", status)
+
+
+def test_view_stream_beside_a_key_without_the_placeholder_is_refused() -> None:
+    result = run_cli("view", "--stream", "front", "--save", "x.jpg", timeout=60)
+    assert result.returncode == 2
+    (line,) = result.stderr.strip().splitlines()
+    assert "{stream}" in line and "--stream 'front'" in line

@@ -42,7 +42,9 @@ from typing import Final, TextIO
 
 import zenoh
 
+from zenoh_perception.camera import readers
 from zenoh_perception.camera.defaults import DEFAULT_COMPRESSED_KEY, DEFAULT_KEY
+from zenoh_perception.camera.readers import ANSWER_S
 from zenoh_perception.camera.shm import ShmPutter, announce
 from zenoh_perception.camera.sources import (
     FrameSource,
@@ -69,6 +71,8 @@ log = logging.getLogger("zenoh_perception.camera.replay")
 _RAW_ENCODING: Final = zenoh.Encoding.APPLICATION_OCTET_STREAM
 _CDR_ENCODING: Final = zenoh.Encoding.APPLICATION_CDR
 _WAIT_POLL_S: Final = 0.1
+#: Seconds between two lines of a camera waiting for a subscriber.
+_WAITING_EVERY_S: Final = 10.0
 
 Clock = Callable[[], float]
 
@@ -263,13 +267,15 @@ def _is_matching(publisher: zenoh.Publisher) -> bool:
 
 
 def _wait_for_subscriber(
+    session: zenoh.Session,
     publisher: zenoh.Publisher,
     *,
     timeout_s: float | None,
     stop: threading.Event,
     clock: Clock,
 ) -> bool:
-    """True once ``publisher`` has a matching subscriber; False on timeout or stop."""
+    """True once ``publisher`` has a matching subscriber; False on timeout or stop. Until
+    then, every :data:`_WAITING_EVERY_S` a line says which services run and what they read."""
     matched = threading.Event()
 
     def on_status(status: zenoh.MatchingStatus) -> None:
@@ -279,9 +285,21 @@ def _wait_for_subscriber(
     with publisher.declare_matching_listener(on_status):
         if _is_matching(publisher):
             return True
-        log.info("event=replay_waiting key=%s reason=no_subscriber", publisher.key_expr)
         deadline = None if timeout_s is None else clock() + timeout_s
+        say_at = clock()
         while not stop.is_set():
+            if clock() >= say_at:
+                say_at = clock() + _WAITING_EVERY_S
+                left = ANSWER_S if deadline is None else min(ANSWER_S, deadline - clock())
+                statuses = readers.ask(session, max(left, 0.01))
+                fields = readers.waiting_fields(str(publisher.key_expr), statuses)
+                if matched.is_set():
+                    return True
+                log.info(
+                    "event=replay_waiting key=%s reason=no_subscriber %s",
+                    publisher.key_expr,
+                    fields,
+                )
             wait = _WAIT_POLL_S if deadline is None else min(_WAIT_POLL_S, deadline - clock())
             if wait <= 0:
                 return False
@@ -405,7 +423,7 @@ def main(
         announce(session, options.key),
     ):
         if options.wait_for_subscriber and not _wait_for_subscriber(
-            publisher, timeout_s=options.subscriber_timeout_s, stop=stop, clock=clock
+            session, publisher, timeout_s=options.subscriber_timeout_s, stop=stop, clock=clock
         ):
             if stop.is_set():
                 return 0

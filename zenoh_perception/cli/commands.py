@@ -92,7 +92,8 @@ def _cmd_status(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import status  # noqa: PLC0415
 
     key = check_key("--status-key", args.status_key, concrete=False)
-    return status.main(zenoh_config_from_args(args), key=key, timeout=args.timeout)
+    conf = zenoh_config_from_args(args)
+    return status.main(conf, key=key, timeout=args.timeout, lines=args.lines)
 
 
 #: The second package of this repository (``bench/``): benchmarks, scene generator, demo camera.
@@ -119,6 +120,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         camera_only=args.camera_only,
         limit=args.limit,
         shm=args.shm,
+        adversaries=args.adversaries,
         stop=stop_on_signals(),
     )
 
@@ -184,9 +186,15 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = sub.add_parser("status", help="query a running service's status (exit 1: none)")
+    parser = sub.add_parser(
+        "status",
+        help="query running services' status (exit 1: none)",
+        description="Prints one JSON array, an object per service that answered; with "
+        "--lines, one object per line.",
+    )
     add_zenoh_arguments(parser)
     parser.add_argument("--status-key", default="perception/status", help="status key")
+    parser.add_argument("--lines", action="store_true", help="one JSON object per line")
     parser.add_argument(
         "--timeout",
         type=bounded_float(0.001, MAX_WAIT_S),
@@ -238,8 +246,10 @@ def _add_bridge_config(sub: argparse._SubParsersAction[argparse.ArgumentParser])
 def _cmd_view(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import view  # noqa: PLC0415
 
+    template = args.debug_image_key or load_settings(args.settings).debug_image_key
+    check_key("--debug-image-key", template.replace("{stream}", "stream"), concrete=True)
     options = view.ViewOptions(
-        key=args.debug_image_key,
+        key=view.view_key(template, args.stream),
         save=args.save,
         every_s=args.every,
         count=args.count,
@@ -260,7 +270,14 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_zenoh_arguments(parser)
     default_key = Settings().debug_image_key
     parser.add_argument(
-        "--debug-image-key", default=default_key, help=f"debug image key (default: {default_key})"
+        "--debug-image-key",
+        default=None,
+        help=f"debug image key, as run's (may hold {{stream}}) (default: the --settings "
+        f"file's, else {default_key})",
+    )
+    parser.add_argument("-s", "--settings", type=Path, metavar="FILE", help="run's settings")
+    parser.add_argument(
+        "--stream", metavar="NAME", help="one camera's image (default: every stream's)"
     )
     parser.add_argument(
         "--save", type=Path, default=None, metavar="PATH", help="write the latest JPEG to PATH"
@@ -283,6 +300,26 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="exit after S seconds",
     )
     parser.set_defaults(handler=_cmd_view, leaves_threads=True)
+
+
+def _cmd_router(args: argparse.Namespace) -> int:
+    from zenoh_perception.cli import router  # noqa: PLC0415
+
+    conf = zenoh_config_from_args(args, {"mode": "router", **router.ROUTER_DEFAULTS})
+    conf.insert_json5("mode", '"router"')  # a -c file's mode too: this command is a router
+    return router.main(conf, stop_on_signals(), sys.stdout)
+
+
+def _add_router(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = sub.add_parser(
+        "router",
+        help="a Zenoh router (Zenoh's own, as zenohd) for machines without zenohd",
+        description="Zenoh's router from zenoh-python: listens on -l (default tcp/[::]:7447), "
+        "connects to the routers given with -e, prints its zid and where it listens, runs "
+        "until SIGINT/SIGTERM (exit 0). Peers on one machine or one network need none.",
+    )
+    add_zenoh_arguments(parser, mode=False)
+    parser.set_defaults(handler=_cmd_router, leaves_threads=True)
 
 
 def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
@@ -313,6 +350,13 @@ def _add_demo_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="put frames from a Zenoh shared-memory buffer, as a camera on the service's machine "
         "would (no copy on put; plain puts, with a warning, where unavailable) (default: off)",
+    )
+    group.add_argument(
+        "--adversaries",
+        action="store_true",
+        help="drive past synthetic adversaries instead of what a rover meets: an exact valid "
+        "code hidden in a blob, a glyph or a bare code, which no real camera shows (default: "
+        "keyboards, text, tiles, other families' markers)",
     )
 
 
@@ -669,4 +713,5 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], 
     _add_bench,
     _add_view,
     _add_bridge_config,
+    _add_router,
 )

@@ -47,7 +47,8 @@ class Parser(argparse.ArgumentParser):
                 if close:
                     hints.append(f"{flag}: did you mean {close[0]}?")
             if hints:
-                message = f"{message} ({'; '.join(hints)})"
+                # the suggestion is what helps: said first, without the usage dump before it
+                self.exit(2, f"{self.prog}: error: {'; '.join(hints)} ({message}; see --help)\n")
         super().error(message)
 
 

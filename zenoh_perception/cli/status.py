@@ -1,4 +1,8 @@
-"""``zenoh-perception status``: query the service's status queryable and print its JSON."""
+"""``zenoh-perception status``: query the services' status queryable and print their JSON.
+
+One JSON document on stdout: an array with one object per service that answered (``json.load``
+reads it whole); with ``lines``, one compact object per line instead (JSON Lines).
+"""
 
 from __future__ import annotations
 
@@ -18,9 +22,11 @@ def main(
     *,
     key: str = "perception/status",
     timeout: float = 2.0,
+    lines: bool = False,
     out: TextIO = sys.stdout,
 ) -> int:
-    """Print the status JSON; 0 when at least one service answered, 1 otherwise. Replies
+    """Print the statuses (an array, or one object per line with ``lines``); 0 when at least
+    one service answered, 1 otherwise. Replies
     that are no status are skipped, and counted by reason on stderr.
 
     Raises:
@@ -35,7 +41,10 @@ def main(
     if not replies:
         print(f"no perception service answered on {key!r} within {timeout} s", file=sys.stderr)
         return 1
-    for reply in replies:
-        # the replies were parsed without NaN or Infinity: what is printed is JSON
-        print(json.dumps(reply, indent=2, allow_nan=False), file=out)
+    # the replies were parsed without NaN or Infinity: what is printed is JSON
+    if lines:
+        for reply in replies:
+            print(json.dumps(reply, allow_nan=False), file=out)
+    else:
+        print(json.dumps(replies, indent=2, allow_nan=False), file=out)
     return 0

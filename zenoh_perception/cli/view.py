@@ -6,6 +6,9 @@ and an OpenCV with a GUI: not ``opencv-python-headless``) it shows the images as
 ``--save PATH`` also writes the latest JPEG to PATH every ``--every`` seconds (replaced
 atomically, so a reader never sees half a file), and without a display that is all it does.
 Zenoh's callback only keeps the newest payload; decoding and writing happen on the main thread.
+A key holding ``{stream}`` (``run``'s own ``debug_image_key`` beside several cameras) is one
+stream's with ``--stream NAME``, every stream's without. Nothing within ``--timeout``: exit 1,
+one line naming the key.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from zenoh_perception.errors import CompressedImageCdrError, PerceptionError
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.wire.compressed import compressed_image_data
 from zenoh_perception.wire.image_header import image_header_size
+from zenoh_perception.wire.stream_keys import STREAM, any_stream_key, stream_key
 
 WINDOW: Final = "zenoh-perception debug image"
 _POLL_S: Final = 0.03
@@ -77,6 +81,26 @@ class ViewOptions:
     timeout_s: float | None
 
 
+def view_key(template: str, stream: str | None) -> str:
+    """The key expression to watch: ``template`` (a debug image key, maybe holding
+    ``{stream}``) for the stream named ``stream``, or for every stream when None.
+
+    Raises:
+        ViewError: a stream named while ``template`` holds no ``{stream}``.
+
+    """
+    if stream is None:
+        return any_stream_key(template)
+    if STREAM not in template:
+        msg = (
+            f"--stream {stream!r}: the debug image key {template!r} holds no {STREAM!r}; give "
+            f"the service's own, e.g. --debug-image-key 'rover/{STREAM}/perception/debug/image/"
+            "compressed' (or --settings FILE)"
+        )
+        raise ViewError(msg)
+    return stream_key(template, stream)
+
+
 def save_atomically(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file beside it, then rename it in place.
 
@@ -100,7 +124,8 @@ def main(
     *,
     out: TextIO = sys.stdout,
 ) -> int:
-    """Show and/or save the debug image until stopped, ``--count`` saves or ``--timeout``.
+    """Show and/or save the debug image until stopped, ``--count`` saves or ``--timeout``;
+    0, or 1 (with a line on stderr naming the key) when no image came within ``--timeout``.
 
     Raises:
         ViewError: no display and no ``--save``, or the save path cannot be written.
@@ -148,6 +173,14 @@ def main(
     finally:
         if window:
             cv2.destroyAllWindows()
+    if options.timeout_s is not None and latest.take()[0] == 0 and not stop.is_set():
+        print(
+            f"view: no debug image arrived on {options.key!r} within {options.timeout_s:g} s: "
+            "is a service running with debug_image on, and is this its debug_image_key "
+            f"(several cameras: --stream NAME with the {STREAM!r} key run was given)?",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

@@ -56,7 +56,8 @@ class OtherServices:
                 liveliness=str(sample.key_expr),
                 tag=self._settings.tag_key,
                 detail="another perception service runs here; on the same keys every tag and "
-                "record is published twice: give each its own keys",
+                "record is published twice: give each its own keys, or start each with the "
+                "same --share-group NAME to divide the cameras between them",
                 suppressed=suppressed,
             )
             log.warning("event=another_service %s", fields)

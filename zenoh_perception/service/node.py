@@ -35,6 +35,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Mapping
 from functools import partial
 from typing import Any, Final
 
@@ -55,6 +56,7 @@ from zenoh_perception.service.session import (
     check_transport_limit,
     connect_endpoints,
     open_session,
+    session_endpoints,
     warn_if_unlinked,
 )
 from zenoh_perception.service.stats import LogGate, ServiceStats
@@ -107,8 +109,10 @@ class PerceptionService:
         *,
         detector: Detector | None = None,
         subscribe_inputs: bool = True,
+        endpoints: Mapping[str, str] | None = None,  # what event=started says of the session
     ) -> None:
         self.settings = settings
+        self._endpoints = dict(endpoints or {})
         #: The service's totals: every stream's counts, and the frames refused before any.
         self.stats = ServiceStats(
             frame_budget_ms=settings.frame_budget_ms,
@@ -178,6 +182,7 @@ class PerceptionService:
             zid=self._session.zid(),
             named=self.wildcard,
             workers=self._worker_count(),
+            endpoints=self._endpoints,
         )
 
     def _declare(self) -> None:
@@ -442,8 +447,8 @@ def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
     session = open_session(conf, stop, log_interval_s=settings.log_interval_s)
     if session is None:
         return 0
-    endpoints = connect_endpoints(conf)
-    with session, PerceptionService(session, settings) as service:
+    endpoints, described = connect_endpoints(conf), session_endpoints(conf)
+    with session, PerceptionService(session, settings, endpoints=described) as service:
         # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives as
         # long as the process: out of the collector's way. A full collection that scanned it
         # would delay the frame in progress, at a high frame rate long enough for the next

@@ -73,7 +73,7 @@ class StreamRegistry:
         self.retired_vetoes.update(stream.vetoed)
         if self._shared.scheduler.remove(stream.lane):
             stream.close()  # else the worker holding it closes it
-        log.info("event=stream_forgotten %s", kv(stream=stream.key))
+        log.info("event=stream_forgotten %s", kv(name=stream.name, stream=stream.key))
 
     def reap(self) -> None:
         """Forget the streams idle for ``stream_idle_s``."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from typing import Any
 
@@ -20,9 +20,16 @@ log = logging.getLogger("zenoh_perception.service.node")
 
 
 def log_started(
-    settings: Settings, ros: RosTransport, *, zid: object, named: bool, workers: int
+    settings: Settings,
+    ros: RosTransport,
+    *,
+    zid: object,
+    named: bool,
+    workers: int,
+    endpoints: Mapping[str, str],
 ) -> None:
-    """The ``event=started`` line: the version, the keys served and the settings that matter.
+    """The ``event=started`` line: the version, the Zenoh id, mode and endpoints, the keys
+    served and the settings that matter.
 
     ``named``: a wildcard or list input (streams named after their keys, up to
     ``max_streams``).
@@ -33,6 +40,7 @@ def log_started(
         kv(
             version=__version__,
             zid=zid,
+            **endpoints,
             ros_transport=s.ros_transport,
             input=",".join(ros.keys("camera")),
             compressed_input=",".join(ros.keys("compressed_camera")),
@@ -136,6 +144,7 @@ def log_stats(status: dict[str, Any], *, per_stream: bool, input_key: str) -> No
         log.info(
             "event=stream_stats %s",
             kv(
+                name=stream["name"],
                 stream=stream["stream"],
                 received=frames["received"],
                 processed=frames["processed"],

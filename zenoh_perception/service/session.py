@@ -87,6 +87,18 @@ def connect_endpoints(conf: zenoh.Config) -> list[str]:
     return [str(e) for e in value] if isinstance(value, list) else []
 
 
+def session_endpoints(conf: zenoh.Config) -> dict[str, str]:
+    """The mode and the endpoints the configuration listens on and connects to, each a
+    comma-separated list (for the ``event=started`` line)."""
+    found = {}
+    for name in ("listen", "connect"):
+        value = json.loads(conf.get_json(f"{name}/endpoints"))
+        if isinstance(value, dict):  # per-mode endpoints
+            value = [e for endpoints in value.values() for e in endpoints]
+        found[name] = ",".join(str(e) for e in value) if isinstance(value, list) else ""
+    return {"mode": str(json.loads(conf.get_json("mode")) or "peer"), **found}
+
+
 def warn_if_unlinked(session: zenoh.Session, endpoints: list[str]) -> None:
     """Warn when ``session`` reached no peer or router through ``endpoints`` (yet)."""
     if not _linked(session):

@@ -551,8 +551,9 @@ class Stream:
             )
 
     def _named(self) -> dict[str, str]:
-        """The field naming the stream in its log lines (none with a single stream)."""
-        return {"stream": self.key} if self._shared.named else {}
+        """The fields naming the stream in its log lines, its name as the README gives it and
+        its key (none with a single stream)."""
+        return {"name": self.name, "stream": self.key} if self._shared.named else {}
 
     # -- observability ----------------------------------------------------------------------
 

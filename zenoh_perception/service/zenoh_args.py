@@ -56,14 +56,16 @@ def open_zenoh(conf: zenoh.Config) -> zenoh.Session:
         raise SessionError(msg) from err
 
 
-def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+def add_zenoh_arguments(parser: argparse.ArgumentParser, *, mode: bool = True) -> None:
+    """The session flags; without ``mode``, no ``-m`` (a command whose mode is fixed)."""
     group = parser.add_argument_group("Zenoh session")
     group.add_argument(
         "-c", "--config", type=Path, metavar="FILE", help="Zenoh configuration file (JSON5)"
     )
-    group.add_argument(
-        "-m", "--mode", choices=("peer", "client", "router"), help="Zenoh mode (default: peer)"
-    )
+    if mode:
+        group.add_argument(
+            "-m", "--mode", choices=("peer", "client", "router"), help="Zenoh mode (default: peer)"
+        )
     group.add_argument(
         "-e",
         "--connect",
@@ -165,8 +167,9 @@ def zenoh_config_from_args(
     if not args.config:
         for path, value in (defaults or {}).items():
             _insert(conf, "defaults", path, json.dumps(value))
-    if args.mode is not None:
-        _insert(conf, "-m/--mode", "mode", json.dumps(args.mode))
+    mode = getattr(args, "mode", None)
+    if mode is not None:
+        _insert(conf, "-m/--mode", "mode", json.dumps(mode))
     for flag, name, endpoints in (
         ("-e/--connect", "connect/endpoints", args.connect),
         ("-l/--listen", "listen/endpoints", args.listen),

@@ -80,6 +80,13 @@ def stream_key(template: str, name: str) -> str:
     return "/".join(chunk for chunk in template.replace(STREAM, name).split("/") if chunk)
 
 
+def any_stream_key(template: str) -> str:
+    """``template`` as the key expression of every stream's key: :data:`STREAM` as a whole
+    chunk is ``**`` (a name may span chunks), inside a chunk ``$*``."""
+    chunks = template.split("/")
+    return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in chunks)
+
+
 def key_entries(keys: Keys) -> tuple[str, ...]:
     """The entries of an input setting: ``()`` when off (``""``)."""
     if isinstance(keys, str):
