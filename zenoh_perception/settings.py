@@ -58,6 +58,7 @@ from zenoh_perception.wire.stream_keys import (
     STREAM,
     Keys,
     StreamNames,
+    colliding_keys,
     has_wildcard,
     key_entries,
     stream_key,
@@ -666,7 +667,23 @@ def _validate_text(settings: Settings) -> None:
                 raise SettingsError(msg)
 
 
+def _refuse_colliding_names(settings: Settings) -> None:
+    """No two cameras an input matches may get one stream name (one mailbox, one detector
+    state for both): a pattern of two ``**`` or more that allows it is refused."""
+    for setting in _FRAME_INPUTS:
+        for entry in settings.entries(setting):
+            pair = colliding_keys(entry)
+            if pair is not None:
+                msg = (
+                    f"{setting} = {entry!r} gives two cameras one stream name ({pair[0]!r} and "
+                    f"{pair[1]!r} would be one stream): use one '**' at most, or list the "
+                    "cameras"
+                )
+                raise SettingsError(msg)
+
+
 def _validate_group(settings: Settings) -> None:
+    _refuse_colliding_names(settings)
     name = settings.share_group
     if not name:
         return
