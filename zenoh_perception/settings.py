@@ -693,12 +693,6 @@ def _validate_group(settings: Settings) -> None:
             "not starting with '.' or '-')"
         )
         raise SettingsError(msg)
-    if settings.ros_transport == "rmw_zenoh":
-        msg = (
-            "share_group needs ros_transport = 'bridge': the group learns the streams from "
-            "the cameras' announcements on plain Zenoh keys"
-        )
-        raise SettingsError(msg)
 
 
 def _validate(settings: Settings) -> None:

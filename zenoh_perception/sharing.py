@@ -178,37 +178,51 @@ def differing(mine: str, theirs: str) -> list[str]:
 
 class LiveStreams:
     """The live announced streams: each concrete key with its stream's name, each name at
-    most once, at most ``bound`` of them. Memory follows the live announcements, never the
-    ones seen before. Not thread-safe (the caller locks)."""
+    most once, from at most ``bound`` live tokens (a camera may be announced by several: a
+    topic with two publishers). Memory follows the live announcements, never the ones seen
+    before. Not thread-safe (the caller locks)."""
 
     def __init__(self, bound: int = MAX_ANNOUNCED) -> None:
         self._bound = bound
         self._names: dict[str, str] = {}  # key -> name
         self._keys: dict[str, str] = {}  # name -> key
+        self._tokens: dict[str, str] = {}  # token -> the key it announces
+        self._count: dict[str, int] = {}  # key -> live tokens announcing it
 
-    def add(self, key: str, name: str) -> bool:
-        """Add a stream; False when it was there already.
+    def add(self, key: str, name: str, token: str | None = None) -> bool:
+        """Add the stream ``token`` (default: ``key`` itself) announces; False when the
+        stream was there already.
 
         Raises:
             AnnouncementError: ``name_collision`` (another live key has that stream name) or
-                ``too_many_announced`` (``bound`` streams are live).
+                ``too_many_announced`` (``bound`` tokens are live).
 
         """
-        if key in self._names:
+        token = key if token is None else token
+        if token in self._tokens:
             return False
-        if name in self._keys:
-            raise AnnouncementError("name_collision", key)
-        if len(self._names) >= self._bound:
+        if len(self._tokens) >= self._bound:
             raise AnnouncementError("too_many_announced", key)
+        if key not in self._names and name in self._keys:
+            raise AnnouncementError("name_collision", key)
+        self._tokens[token] = key
+        count = self._count.get(key, 0)
+        self._count[key] = count + 1
+        if count:
+            return False
         self._names[key], self._keys[name] = name, key
         return True
 
-    def remove(self, key: str) -> bool:
-        """Forget a stream; False when it was not there."""
-        name = self._names.pop(key, None)
-        if name is None:
+    def remove(self, token: str) -> bool:
+        """Forget a token; True when its stream went with it (no other token announces it)."""
+        key = self._tokens.pop(token, None)
+        if key is None:
             return False
-        del self._keys[name]
+        count = self._count.pop(key) - 1
+        if count:
+            self._count[key] = count
+            return False
+        del self._keys[self._names.pop(key)]
         return True
 
     def keys(self) -> frozenset[str]:

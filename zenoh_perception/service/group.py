@@ -53,11 +53,17 @@ import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Final
 
 import zenoh
 
-from zenoh_perception.errors import AnnouncementError, PerceptionError, SettingsError
+from zenoh_perception.errors import (
+    AnnouncementError,
+    PerceptionError,
+    RmwZenohError,
+    SettingsError,
+)
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.service.threads import guarded_thread
@@ -81,6 +87,14 @@ from zenoh_perception.sharing import (
     member_token_key,
     members_key,
 )
+from zenoh_perception.wire.bridge_liveliness import ADMIN_SPACE as BRIDGE_ADMIN
+from zenoh_perception.wire.bridge_liveliness import BridgeTokenError
+from zenoh_perception.wire.bridge_liveliness import Kind as BridgeKind
+from zenoh_perception.wire.bridge_liveliness import parse_token as parse_bridge_token
+from zenoh_perception.wire.rmw_zenoh import ADMIN_SPACE as RMW_ADMIN
+from zenoh_perception.wire.rmw_zenoh import PUBLISHER as RMW_PUBLISHER
+from zenoh_perception.wire.rmw_zenoh import dds_type_name, topic_key
+from zenoh_perception.wire.rmw_zenoh import parse_token as parse_rmw_token
 from zenoh_perception.wire.stream_keys import StreamNames, key_entries
 
 log = logging.getLogger("zenoh_perception.service.group")
@@ -117,25 +131,95 @@ def settings_fingerprint(settings: Settings) -> str:
     return fingerprint(values)
 
 
+#: The ROS type of each frame input's topic.
+_CAMERA_TYPES: Final = {
+    "input_key": "sensor_msgs/msg/Image",
+    "compressed_input_key": "sensor_msgs/msg/CompressedImage",
+}
+
+
 def camera_sources(settings: Settings) -> list[CameraSource]:
-    """The ``@camera/<entry>`` announcements of each entry of each frame input, read as the
-    service names their streams (raw and compressed streams apart)."""
-    sources: list[CameraSource] = []
-    for role in ("input_key", "compressed_input_key"):
-        names = StreamNames(getattr(settings, role))
-        for entry in settings.entries(role):
+    """Where the cameras of ``settings``' inputs are announced, each read as the service
+    names its streams (raw and compressed streams apart):
 
-            def read(token: str, names: StreamNames = names, role: str = role) -> tuple[str, str]:
-                key = camera_key_of(token)
-                if key is None:
-                    raise AnnouncementError("no_match", token)
-                name = names.name(check_announced_key(key))
-                if name is None:
-                    raise AnnouncementError("no_match", token)
-                return key, f"{role}:{name}"
-
-            sources.append(CameraSource(camera_token_key(entry), read))
+    - ``@camera/<entry>`` for each entry of each frame input (this project's cameras);
+    - zenoh-bridge-ros2dds's publisher route tokens (a ROS camera behind a bridge: the key
+      it publishes on is the stream's);
+    - with ``ros_transport = "rmw_zenoh"``, rmw_zenoh's publisher tokens in the configured
+      domain (the stream is the topic's data key).
+    """
+    inputs = {
+        role: StreamNames(getattr(settings, role))
+        for role in _CAMERA_TYPES
+        if getattr(settings, role)
+    }
+    sources = [
+        CameraSource(camera_token_key(entry), partial(_read_camera_token, role, names))
+        for role, names in inputs.items()
+        for entry in names.entries
+    ]
+    by_type = {_CAMERA_TYPES[role]: (role, names) for role, names in inputs.items()}
+    sources.append(CameraSource(BRIDGE_PUBLISHERS, partial(_read_bridge_token, by_type)))
+    if settings.ros_transport == "rmw_zenoh":
+        domain = settings.ros_domain_id
+        by_dds = {dds_type_name(t): (t, *named) for t, named in by_type.items()}
+        read = partial(_read_rmw_token, by_dds, domain, settings.ros_namespace)
+        sources.append(CameraSource(f"{RMW_ADMIN}/{domain}/*/*/*/{RMW_PUBLISHER}/**", read))
     return sources
+
+
+#: Every publisher route token of every zenoh-bridge-ros2dds (its key and type are one chunk).
+BRIDGE_PUBLISHERS: Final = f"@/*/{BRIDGE_ADMIN}/{BridgeKind.PUBLISHER.value}/*/*/*"
+
+
+def _stream(role: str, names: StreamNames, key: str, token: str) -> tuple[str, str]:
+    """The stream of ``key`` (the part its input names) on input ``role``."""
+    name = names.name(key)
+    if name is None:
+        raise AnnouncementError("no_match", token)
+    return name, f"{role}:{name}"
+
+
+def _read_camera_token(role: str, names: StreamNames, token: str) -> tuple[str, str]:
+    key = camera_key_of(token)
+    if key is None:
+        raise AnnouncementError("no_match", token)
+    return key, _stream(role, names, check_announced_key(key), token)[1]
+
+
+def _read_bridge_token(by_type: dict[str, tuple[str, StreamNames]], token: str) -> tuple[str, str]:
+    try:
+        route = parse_bridge_token(token)
+    except BridgeTokenError as err:
+        raise AnnouncementError("bad_bridge_token", token) from err
+    camera = by_type.get(route.ros_type)
+    if route.kind is not BridgeKind.PUBLISHER or camera is None:
+        raise AnnouncementError("no_match", token)
+    key = check_announced_key(route.key)
+    return key, _stream(*camera, key, token)[1]
+
+
+def _read_rmw_token(
+    by_dds: dict[str, tuple[str, str, StreamNames]], domain: int, namespace: str, token: str
+) -> tuple[str, str]:
+    if any(c in token for c in "*$?#"):
+        raise AnnouncementError("not_concrete", token)
+    try:
+        publisher = parse_rmw_token(token)
+    except (RmwZenohError, ValueError) as err:  # int() of a digit str.isdigit() admits
+        raise AnnouncementError("bad_rmw_zenoh_token", token) from err
+    camera = by_dds.get(publisher.dds_type)
+    prefix = namespace.rstrip("/") + "/"
+    if (
+        publisher.kind != RMW_PUBLISHER
+        or publisher.domain_id != domain
+        or camera is None
+        or not publisher.topic.startswith(prefix)
+    ):
+        raise AnnouncementError("no_match", token)
+    ros_type, role, names = camera
+    key = topic_key(domain, publisher.topic, ros_type, publisher.type_hash)
+    return check_announced_key(key), _stream(role, names, publisher.topic[len(prefix) :], token)[1]
 
 
 @dataclass(slots=True)
@@ -380,7 +464,10 @@ class StreamGroup:
             try:
                 key, name = source.read(token)
                 with self._lock:
-                    changed = self._streams.add(key, name) if present else self._streams.remove(key)
+                    if present:
+                        changed = self._streams.add(key, name, token)
+                    else:
+                        changed = self._streams.remove(token)
                 if changed:
                     self._changed.set()
             except AnnouncementError as err:
