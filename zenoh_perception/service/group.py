@@ -222,6 +222,11 @@ def _read_rmw_token(
     return check_announced_key(key), _stream(role, names, publisher.topic[len(prefix) :], token)[1]
 
 
+def _direct(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback[zenoh.Sample]:
+    """``callback`` called on the Zenoh thread that receives the sample."""
+    return zenoh.handlers.Callback(callback, indirect=False)
+
+
 @dataclass(slots=True)
 class _Member:
     fingerprint: str
@@ -306,11 +311,18 @@ class StreamGroup:
             member_token_key(lk, name, self._zid, self._fingerprint)
         )
         self._beat_due = True  # the others count this member from its first heartbeat
-        self._declared.append(self._session.declare_subscriber(beats_key(lk, name), self._on_beat))
+        # The callbacks run on Zenoh's own threads (each is short and never blocks): no
+        # thread of their own whose backlog, under a flood of tokens, would grow without
+        # bound and hold up the session's close.
+        self._declared.append(
+            self._session.declare_subscriber(beats_key(lk, name), _direct(self._on_beat))
+        )
         watches = [(members_key(lk, name), self._on_member)]
         watches += [(source.watch, self._camera_callback(source)) for source in self._sources]
         for key, callback in watches:
-            self._declared.append(liveliness.declare_subscriber(key, callback, history=True))
+            self._declared.append(
+                liveliness.declare_subscriber(key, _direct(callback), history=True)
+            )
         # the subscribers' history arrives in its own time: ask, and wait for the answers,
         # before taking anything (taking every stream for a moment would answer twice)
         self._discover(liveliness, watches)
@@ -409,6 +421,8 @@ class StreamGroup:
     # -- Zenoh callbacks: update the sets, never block, never raise ---------------------------
 
     def _on_member(self, sample: zenoh.Sample, *, answer: bool = False) -> None:
+        if self._stop.is_set():
+            return
         key = str(sample.key_expr)
         present = sample.kind == zenoh.SampleKind.PUT
         if not self._fresh(key, present=present, answer=answer):
@@ -457,6 +471,8 @@ class StreamGroup:
 
     def _camera_callback(self, source: CameraSource) -> Callable[..., None]:
         def on_camera(sample: zenoh.Sample, *, answer: bool = False) -> None:
+            if self._stop.is_set():  # a backlog left at close costs nothing
+                return
             token = str(sample.key_expr)
             present = sample.kind == zenoh.SampleKind.PUT
             if not self._fresh(token, present=present, answer=answer):
