@@ -281,6 +281,7 @@ class StreamGroup:
         self._ignored: Counter[str] = Counter()
         self._ignored_tokens: set[str] = set()  # live tokens ignored (each counted once)
         self._changed = threading.Event()
+        self._beaten = threading.Event()  # a member's first heartbeat came (joining waits)
         self._stop = threading.Event()
         self._declared: list[Any] = []
         self._token: Any = None
@@ -358,12 +359,14 @@ class StreamGroup:
     def _wait_for_beats(self) -> None:
         """Wait (a few heartbeat periods at most) for a heartbeat of every member found."""
         deadline = time.monotonic() + 4 * BEAT_PERIOD_S
-        while time.monotonic() < deadline and not self._stop.is_set():
+        while not self._stop.is_set():
             with self._lock:
                 waiting = [m for m in self._members.values() if m.beat < 0]
-            if not waiting:
+                self._beaten.clear()
+            left = deadline - time.monotonic()
+            if not waiting or left <= 0:
                 return
-            self._stop.wait(BEAT_PERIOD_S / 4)
+            self._beaten.wait(left)
 
     def _refuse_disagreeing(self) -> None:
         """Refuse to join where a live member serves with other settings."""
@@ -467,6 +470,7 @@ class StreamGroup:
                 return  # a heartbeat without a token (yet): the token comes first
             if now - member.beat > self._silent_after_s:
                 self._changed.set()  # a newcomer, or a silent member back
+                self._beaten.set()
             member.beat = now
 
     def _camera_callback(self, source: CameraSource) -> Callable[..., None]:
