@@ -385,3 +385,40 @@ def test_random_liveliness_keys_never_raise_in_the_groups_handlers(
 class _FakeSession:
     def zid(self) -> str:
         return "0123abcd"
+
+
+def test_a_crash_of_the_groups_thread_fails_the_service_loudly(
+    peers: tuple[zenoh.Session, zenoh.Session], caplog: pytest.LogCaptureFixture
+) -> None:
+    """The group's thread once died silently (``event=thread_crashed``, nothing else): the
+    instance then never reassigned while its status said it was alive. A crash now sets
+    ``failed`` (``run`` exits 1) and the status says the thread is gone."""
+    first, _second = peers
+    token = announce(first, KEYS[0])
+    failed = threading.Event()
+
+    def take(_key: str) -> None:
+        raise RuntimeError("a bug")
+
+    group = StreamGroup(
+        first,
+        name="g",
+        liveliness_key="perception/alive",
+        sources=camera_sources(SETTINGS),
+        fingerprint=FINGERPRINT,
+        capacity=4,
+        take=take,
+        release=lambda _key: None,
+        gate=LogGate(5.0),
+        failed=failed,
+        discovery_timeout_s=1.0,
+    )
+    group.start()
+    try:
+        wait_until(failed.is_set, what="the crash reported")
+        wait_until(lambda: not group.status()["thread_alive"], what="the thread gone")
+        assert "event=thread_crashed" in caplog.text
+        assert "thread=perception-group" in caplog.text
+    finally:
+        group.close()
+        token.undeclare()
