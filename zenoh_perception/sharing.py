@@ -53,8 +53,9 @@ MAX_ANNOUNCED_KEY_CHARS: Final = 256
 MAX_ANNOUNCED_CHUNKS: Final = 16
 #: Most live announced streams a group member keeps; further announcements are counted only.
 MAX_ANNOUNCED: Final = 1024
-#: Most members a group member keeps track of; further member tokens are counted only.
-MAX_MEMBERS: Final = 64
+#: Most members a group member keeps track of; past that, a new member token replaces the
+#: member silent the longest (none silent: it is counted only).
+MAX_MEMBERS: Final = 256
 #: The settings every member of a group must share, in the order of the fingerprint's fields.
 GROUP_SETTINGS: Final = (
     "input_key",

@@ -422,3 +422,22 @@ def test_a_crash_of_the_groups_thread_fails_the_service_loudly(
     finally:
         group.close()
         token.undeclare()
+
+
+def test_a_flood_of_bare_member_tokens_cannot_shut_a_real_member_out(
+    peers: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    """200 bare member tokens (64 once filled a group's table) leave the real members
+    counted: they split the streams as if alone."""
+    first, second = peers
+    tokens = [announce(first, key) for key in KEYS]
+    bare = [_bare_token(first, f"abcd{i:04x}") for i in range(200)]
+    with member(first) as one:
+        wait_until(lambda: one.held.keys == set(KEYS), what="every stream held")
+        with member(second) as two:
+            wait_until(
+                lambda: len(one.held.keys) == len(two.held.keys) == 2,
+                what="the real members split the streams",
+            )
+    for token in [*tokens, *bare]:
+        token.undeclare()

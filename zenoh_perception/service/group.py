@@ -52,7 +52,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, Final
 
@@ -231,6 +231,12 @@ def _direct(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback
 class _Member:
     fingerprint: str
     beat: float = -1e18  # monotonic s of its last heartbeat: none yet
+    seen: float = field(default_factory=time.monotonic)  # when its token came
+
+    @property
+    def heard(self) -> float:
+        """When it last said something (its token, or a heartbeat)."""
+        return max(self.beat, self.seen)
 
 
 class StreamGroup:
@@ -451,8 +457,13 @@ class StreamGroup:
             if known is not None and known.fingerprint == fingerprint:
                 return  # seen already (a query's answer after the subscriber's sample)
             if known is None and len(self._members) >= MAX_MEMBERS:
+                # room for a newcomer at the cost of the member silent the longest (bare
+                # tokens never beat: a flood of them cannot shut real members out)
                 self._ignored["too_many_members"] += 1
-                return
+                victim = min(self._members, key=lambda z: self._members[z].heard)
+                if time.monotonic() - self._members[victim].heard <= self._silent_after_s:
+                    return
+                del self._members[victim]
             self._members[zid] = _Member(fingerprint)
             self._beat_due = True  # the newcomer waits for our heartbeat before it takes
         self._log_disagreeing(zid, fingerprint)
