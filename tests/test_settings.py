@@ -25,6 +25,7 @@ from zenoh_perception.settings import (
     settings_from_args,
     settings_from_mapping,
 )
+from zenoh_perception.wire.stream_keys import stream_name
 
 CONFIG = REPO / "config" / "perception.toml"
 
@@ -493,9 +494,29 @@ def test_share_group_names_that_are_accepted() -> None:
     assert Settings().share_group == ""  # every stream, as before
 
 
-def test_share_group_needs_the_bridge_transport() -> None:
-    with pytest.raises(SettingsError, match="share_group"):
-        settings_from_mapping({"share_group": "rover", "ros_transport": "rmw_zenoh"})
+def test_share_group_works_with_either_transport() -> None:
+    # the group learns rmw_zenoh cameras from their publishers' liveliness tokens
+    settings = settings_from_mapping({"share_group": "rover", "ros_transport": "rmw_zenoh"})
+    assert settings.share_group == "rover"
+
+
+def test_an_input_that_gives_two_cameras_one_stream_name_is_refused() -> None:
+    """``x/**/cam/**`` names ``x/a/b/cam/c`` and ``x/a/cam/b/c`` both ``a/b/c``: one mailbox
+    and one detector state for two cameras. Refused, naming two such keys."""
+    outputs = {k: f"out/{{stream}}/{k}" for k in ("tag_key", "record_key", "detections_key")}
+    with pytest.raises(SettingsError) as caught:
+        settings_from_mapping(
+            {
+                "input_key": "x/**/cam/**",
+                "compressed_input_key": "",
+                "debug_image_key": "out/{stream}/debug",
+                **outputs,
+            }
+        )
+    assert "input_key = 'x/**/cam/**' gives two cameras one stream name" in str(caught.value)
+    first, second = re.findall(r"\('([^']+)' and '([^']+)'", str(caught.value))[0]
+    assert stream_name("x/**/cam/**", first) == stream_name("x/**/cam/**", second)
+    assert first != second
 
 
 # -- several cameras as a list of keys ---------------------------------------------------------

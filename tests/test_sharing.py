@@ -5,13 +5,24 @@ from __future__ import annotations
 import random
 from collections import Counter
 
+import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
+from zenoh_perception.errors import AnnouncementError
 from zenoh_perception.sharing import (
+    GROUP_SETTINGS,
+    MAX_ANNOUNCED_CHUNKS,
+    MAX_ANNOUNCED_KEY_CHARS,
+    LiveStreams,
     assign,
+    beat_key,
+    beat_of,
     camera_key_of,
     camera_token_key,
+    check_announced_key,
+    differing,
+    fingerprint,
     held_by,
     member_of,
     member_token_key,
@@ -150,12 +161,91 @@ def test_no_member_no_holder() -> None:
     assert assign([], ["a"]) == {}
 
 
+FINGERPRINT = fingerprint(dict.fromkeys(GROUP_SETTINGS, "x"))
+
+
 def test_token_keys_round_trip() -> None:
     assert camera_token_key("cams/front/image") == "@camera/cams/front/image"
     assert camera_key_of("@camera/cams/front/image") == "cams/front/image"
     assert camera_key_of("perception/alive/x") is None
-    token = member_token_key("perception/alive", "rover", "a1b2")
-    assert token == "perception/alive/group/rover/a1b2"  # noqa: S105
-    assert member_of(token, "perception/alive", "rover") == "a1b2"
-    assert member_of(token, "perception/alive", "other") is None
-    assert member_of("perception/alive/group/rover/a/b", "perception/alive", "rover") is None
+    token = member_token_key("perception/alive", "rover", "a1b2", FINGERPRINT)
+    assert token == f"perception/alive/group/rover/member/a1b2/{FINGERPRINT}"
+    assert member_of(token, "perception/alive", "rover") == ("a1b2", FINGERPRINT)
+    beat = beat_key("perception/alive", "rover", "a1b2")
+    assert beat_of(beat, "perception/alive", "rover") == "a1b2"
+
+
+@pytest.mark.parametrize(
+    "token",
+    [
+        f"perception/alive/group/other/member/a1b2/{FINGERPRINT}",  # another group
+        "perception/alive/group/rover/member/a1b2",  # no fingerprint (a bare token)
+        f"perception/alive/group/rover/member/a1b2/{FINGERPRINT}/x",
+        f"perception/alive/group/rover/member/A1B2/{FINGERPRINT}",  # not a Zenoh id
+        "perception/alive/group/rover/member/a1b2/0.1.2.3.4",
+        "perception/alive/group/rover/member/*/*",
+    ],
+)
+def test_a_malformed_member_token_is_refused_by_reason(token: str) -> None:
+    with pytest.raises(AnnouncementError) as caught:
+        member_of(token, "perception/alive", "rover")
+    assert caught.value.reason == "bad_member_token"
+
+
+@pytest.mark.parametrize(
+    ("key", "reason"),
+    [
+        ("rover/*/image", "not_concrete"),
+        ("rover/**", "not_concrete"),
+        ("rover/$*x/image", "not_concrete"),
+        ("", "not_concrete"),
+        ("a" * (MAX_ANNOUNCED_KEY_CHARS + 1), "too_long"),
+        ("/".join(["a"] * (MAX_ANNOUNCED_CHUNKS + 1)), "too_many_chunks"),
+    ],
+)
+def test_an_announced_key_that_is_no_camera_key_is_refused_by_reason(key: str, reason: str) -> None:
+    with pytest.raises(AnnouncementError) as caught:
+        check_announced_key(key)
+    assert caught.value.reason == reason
+
+
+def test_a_fingerprint_says_which_settings_differ() -> None:
+    values = dict.fromkeys(GROUP_SETTINGS, "x")
+    mine = fingerprint(values)
+    theirs = fingerprint({**values, "max_streams": "8", "input_key": "cams/a/image"})
+    assert differing(mine, mine) == []
+    assert differing(mine, theirs) == ["input_key", "max_streams"]
+
+
+def test_live_streams_keep_each_name_once_and_within_the_bound() -> None:
+    live = LiveStreams(bound=2)
+    assert live.add("x/a/b/cam/c", "a/b/c")
+    assert not live.add("x/a/b/cam/c", "a/b/c")
+    with pytest.raises(AnnouncementError, match="name_collision"):
+        live.add("x/a/cam/b/c", "a/b/c")
+    assert live.add("x/d", "d")
+    with pytest.raises(AnnouncementError, match="too_many_announced"):
+        live.add("x/e", "e")
+    assert live.remove("x/d") and not live.remove("x/d")
+    assert live.keys() == {"x/a/b/cam/c"}
+
+
+def test_unique_short_lived_streams_leave_nothing_behind() -> None:
+    live = LiveStreams()
+    for i in range(20_000):
+        live.add(f"cams/{i}/image", str(i))
+        live.remove(f"cams/{i}/image")
+    assert len(live) == 0
+    assert live.keys() == frozenset()
+
+
+@given(stream_names, member_names, st.integers(min_value=1, max_value=8))
+def test_capacity_bounds_what_each_member_holds(
+    streams: list[str], members: list[str], capacity: int
+) -> None:
+    holder = assign(streams, members, capacity=capacity)
+    loads = Counter(holder.values())
+    assert all(load <= capacity for load in loads.values())
+    assert len(holder) == min(len(streams), capacity * len(members))
+    if len(streams) <= capacity * len(members):
+        assert holder == assign(streams, members)

@@ -177,6 +177,17 @@ class MissingPackageError(PerceptionError):
         )
 
 
+class AnnouncementError(PerceptionError):
+    """A liveliness token a share group does not trust: a camera announcement or a member
+    token it ignores. ``reason`` (``not_concrete``, ``too_long``, ``no_match``, ...) is counted
+    and named in the log; the group carries on."""
+
+    def __init__(self, reason: str, key: str) -> None:
+        super().__init__(f"{reason}: {key[:120]!r}")
+        self.reason = reason
+        self.key = key
+
+
 class SessionError(PerceptionError):
     """A Zenoh session could not be opened (a listen port in use, a bad endpoint, ...)."""
 

@@ -67,6 +67,7 @@ from zenoh_perception.wire.stream_keys import (
     Keys,
     StreamNames,
     any_stream_key,
+    colliding_keys,
     has_wildcard,
     key_entries,
     stream_key,
@@ -700,7 +701,23 @@ def _validate_text(settings: Settings) -> None:
                 raise SettingsError(msg)
 
 
+def _refuse_colliding_names(settings: Settings) -> None:
+    """No two cameras an input matches may get one stream name (one mailbox, one detector
+    state for both): a pattern of two ``**`` or more that allows it is refused."""
+    for setting in _FRAME_INPUTS:
+        for entry in settings.entries(setting):
+            pair = colliding_keys(entry)
+            if pair is not None:
+                msg = (
+                    f"{setting} = {entry!r} gives two cameras one stream name ({pair[0]!r} and "
+                    f"{pair[1]!r} would be one stream): use one '**' at most, or list the "
+                    "cameras"
+                )
+                raise SettingsError(msg)
+
+
 def _validate_group(settings: Settings) -> None:
+    _refuse_colliding_names(settings)
     name = settings.share_group
     if not name:
         return
@@ -708,12 +725,6 @@ def _validate_group(settings: Settings) -> None:
         msg = (
             f"share_group {name!r} is not a group name (1-64 letters, digits, '_', '.' or '-', "
             "not starting with '.' or '-')"
-        )
-        raise SettingsError(msg)
-    if settings.ros_transport == "rmw_zenoh":
-        msg = (
-            "share_group needs ros_transport = 'bridge': the group learns the streams from "
-            "the cameras' announcements on plain Zenoh keys"
         )
         raise SettingsError(msg)
 

@@ -18,7 +18,7 @@ import queue
 import secrets
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -37,7 +37,9 @@ from tests.helpers import (
     running_cli,
     wait_for_status,
     wait_for_subscriber,
+    wait_until,
 )
+from zenoh_perception.camera.shm import announce
 from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.service.ros_transport import RMW_ZENOH
 from zenoh_perception.settings import load_settings
@@ -795,3 +797,57 @@ def test_real_service_with_the_shipped_perception_config(
         assert {t.session_id for t in service_tokens} == {status["zid"]}
         assert len(service_tokens) == 1 + len(ROS_TOPICS) - 1  # node + topics, CameraInfo off
         assert sum(t.node_name == "zed_camera" for t in graph) == len(camera_tokens)
+
+
+def test_a_share_group_behind_the_secured_router(secured: _Deployment) -> None:
+    """Two instances in a share group behind the secured router: the camera's announcement
+    reaches them, one of them answers each frame, once; a consumer's forged member token and
+    camera announcement are dropped by the router (the group never sees them)."""
+    camera = secured.client("camera")
+    consumer = secured.client("consumer")
+    records = Collector(consumer, _TAGS_RECORD)
+    announced = announce(camera, _FRAMES)
+    flags = (
+        "run", "-c", str(_PROFILE_DIRS[secured.profile] / "perception.json5"),
+        "-e", f"tls/127.0.0.1:{secured.port}", *_cfg_args(secured),
+        "--share-group", "rover", "--stats-interval-s", "0",
+    )  # fmt: skip
+
+    def groups() -> list[dict[str, Any]]:
+        """Every instance's group status (each answers on the same key)."""
+        replies = consumer.get(
+            _STATUS,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=_DELIVERY_TIMEOUT,
+        )
+        found = [json.loads(r.ok.payload.to_bytes())["group"] for r in replies if r.ok is not None]
+        return [g for g in found if g is not None]  # None: an instance still joining
+
+    with running_cli(*flags), running_cli(*flags):
+        wait_until(
+            lambda: sorted(len(g["held"]) for g in groups() if len(g["members"]) == 2) == [0, 1],
+            what="two members, one holding the camera",
+        )
+        fingerprint = groups()[0]["fingerprint"]
+        intruder = secured.client("consumer")
+        forged = [
+            intruder.liveliness().declare_token(key)
+            for key in (
+                f"{_ALIVE}/group/rover/member/abcdef01/{fingerprint}",
+                "@camera/zed/left/image/compressed",
+            )
+        ]
+        _round_trip(intruder)  # the router has taken (and refused) both
+        raw = _publisher_seeing_subscriber(camera, _FRAMES)
+        meta = RawFrameMeta(_W, _H)
+        for seq in range(5):
+            frame = replace(meta, seq=seq).to_msgpack()
+            raw.put(_marker_image(7).tobytes(), attachment=frame)
+            assert decode_record(records.get(timeout=30).payload)["seq"] == seq
+        late = _late_arrivals(records)
+        after = groups()
+        for token in [*forged, announced]:
+            token.undeclare()
+    assert late == []  # no frame answered twice
+    assert [(g["streams"], g["silent"], g["ignored"]) for g in after] == [(1, [], {})] * 2

@@ -11,16 +11,29 @@ from __future__ import annotations
 
 import json
 import queue
+import subprocess
+import sys
+import threading
 import time
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import ExitStack
+from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
 
-from tests.helpers import Collector, loopback_config, loopback_endpoint, running_cli, wait_until
+from tests.helpers import (
+    REPO,
+    Collector,
+    loopback_config,
+    loopback_endpoint,
+    run_cli,
+    running_cli,
+    sigterm_exit,
+    wait_until,
+)
 from tools.rig import marker_frame
 from zenoh_perception.camera.shm import announce
 from zenoh_perception.wire.frames import RawFrameMeta
@@ -228,3 +241,189 @@ def test_a_list_of_cameras_is_split_as_a_pattern_is(router: tuple[str, zenoh.Ses
         statuses = _statuses(session).values()
         streams = {s["name"]: s["tag_key"] for status in statuses for s in status["streams"]}
         assert streams == {name: f"cams/{name}/tag" for name in CAMERAS}
+
+
+# -- peers that are hostile, careless or wedged --------------------------------------------------
+
+
+def _group_status(session: zenoh.Session) -> dict[str, dict[str, Any]]:
+    return {zid: s["group"] for zid, s in _statuses(session).items() if s["group"] is not None}
+
+
+def test_hostile_announcements_and_bare_members_break_nothing(
+    router: tuple[str, zenoh.Session],
+) -> None:
+    """Wildcard and oversized camera announcements, and bare member tokens (no service
+    behind them), once killed the group's thread or black-holed cameras. Each is ignored or
+    left out now: the two instances split the four cameras, answer each frame once, and when
+    one is killed the other takes everything."""
+    endpoint, session = router
+    cameras = Cameras(session, CAMERAS)
+    records = Collector(session, "cams/*/perception/tags")
+    hostile = [
+        session.liveliness().declare_token(key)
+        for key in (
+            "@camera/cams/*/image",
+            "@camera/cams/**",
+            "@camera/cams/" + "x" * 300 + "/image",
+        )
+    ]
+    with ExitStack() as stack:
+        stack.callback(cameras.close)
+        for token in hostile:
+            stack.callback(token.undeclare)
+        first = stack.enter_context(running_cli(*_instance(endpoint)))
+        second = stack.enter_context(running_cli(*_instance(endpoint)))
+        split = _split(session, 2)
+        fingerprint = next(iter(_group_status(session).values()))["fingerprint"]
+        for i in range(20):  # bare tokens: a member's key and fingerprint, nothing behind
+            key = f"perception/alive/group/{GROUP}/member/abcdef{i:02x}/{fingerprint}"
+            stack.callback(session.liveliness().declare_token(key).undeclare)
+        stack.callback(session.liveliness().declare_token("@camera/**").undeclare)
+        wait_until(
+            lambda: all(len(g["silent"]) == 20 for g in _group_status(session).values()),
+            what="the bare members seen, and left out",
+        )
+        assert _split(session, 2) == split
+        for group in _group_status(session).values():
+            assert group["thread_alive"]
+            assert group["ignored"] == {"not_concrete": 3, "too_long": 1}
+        for seq in range(2):
+            assert _answer_each_once(cameras, records, seq) == {(name, seq): 1 for name in CAMERAS}
+        second.kill()
+        second.wait(timeout=10)
+        assert list(_split(session, 1).values()) == [set(cameras.keys.values())]
+        for seq in range(2, 4):
+            assert _answer_each_once(cameras, records, seq) == {(name, seq): 1 for name in CAMERAS}
+        assert first.poll() is None
+
+
+#: A real ``zenoh-perception run`` whose Python can be wedged: a line on its stdin makes a
+#: thread call libc's sleep through ctypes.PyDLL, which keeps the GIL. Its Zenoh runtime (Rust
+#: threads) lives on, and so does its liveliness token.
+_WEDGEABLE = """
+import ctypes, sys, threading
+from zenoh_perception.cli.main import main
+
+def wedge():
+    sys.stdin.readline()
+    ctypes.PyDLL(None).sleep(120)
+
+threading.Thread(target=wedge, daemon=True).start()
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_wedged_instance_loses_its_streams_to_the_others(
+    router: tuple[str, zenoh.Session],
+) -> None:
+    """An instance whose Python is wedged (the GIL held) while its Zenoh runtime lives once
+    kept its token and its cameras unanswered. Its heartbeat stops with its workers: the other
+    takes its streams, and every frame is answered once."""
+    endpoint, session = router
+    cameras = Cameras(session, CAMERAS)
+    records = Collector(session, "cams/*/perception/tags")
+    with ExitStack() as stack:
+        stack.callback(cameras.close)
+        first = stack.enter_context(running_cli(*_instance(endpoint)))
+        wedgeable = subprocess.Popen(
+            [sys.executable, "-c", _WEDGEABLE, *_instance(endpoint)],
+            cwd=REPO,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        stack.callback(wedgeable.wait)
+        stack.callback(wedgeable.kill)
+        _split(session, 2)
+        assert wedgeable.stdin is not None
+        wedgeable.stdin.write("wedge\n")
+        wedgeable.stdin.flush()
+        wedged_at = time.monotonic()
+        alone = _split(session, 1)
+        print(f"wedged instance's streams answered again {time.monotonic() - wedged_at:.1f} s on")
+        assert list(alone.values()) == [set(cameras.keys.values())]
+        group = next(iter(_group_status(session).values()))
+        assert group["silent"] == [z for z in group["silent"]] and len(group["silent"]) == 1
+        assert group["evictions"] == 1
+        for seq in range(3):
+            assert _answer_each_once(cameras, records, seq) == {(name, seq): 1 for name in CAMERAS}
+        assert wedgeable.poll() is None  # wedged, not dead
+        assert first.poll() is None
+
+
+def test_an_instance_with_other_settings_refuses_to_join(
+    router: tuple[str, zenoh.Session],
+) -> None:
+    """Two instances with different max_streams once split the cameras and one refused a
+    stream the other had room for. The newcomer now exits 2 naming the setting."""
+    endpoint, session = router
+    cameras = Cameras(session, CAMERAS)
+    with ExitStack() as stack:
+        stack.callback(cameras.close)
+        stack.enter_context(running_cli(*_instance(endpoint)))
+        _split(session, 1)
+        refused = run_cli(*_instance(endpoint), "--max-streams", "8")
+        assert refused.returncode == 2, refused.stderr
+        assert "another max_streams" in refused.stderr
+        assert list(_split(session, 1).values()) == [set(cameras.keys.values())]
+
+
+def test_an_input_that_gives_two_cameras_one_name_is_refused_at_start() -> None:
+    flags = _instance(loopback_endpoint())
+    at = flags.index("--input-key")
+    flags[at + 1] = "x/**/cam/**"
+    refused = run_cli(*flags)
+    assert refused.returncode == 2
+    assert "input_key = 'x/**/cam/**' gives two cameras one stream name" in refused.stderr
+
+
+def _threads_and_rss(pid: int) -> tuple[int, int]:
+    fields = dict(
+        line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
+    )
+    return int(fields["Threads"]), int(fields["VmRSS"].split()[0]) // 1024
+
+
+def test_ten_thousand_announcements_cost_counters_and_sigterm_still_exits(
+    router: tuple[str, zenoh.Session],
+) -> None:
+    """10,000 announced cameras once made a thread per camera (9,928), 372 MB, and a process
+    SIGTERM could not stop. Now an instance holds max_streams of them without a thread each,
+    keeps at most 1,024, and exits 0 on SIGTERM while announcements come and go."""
+    endpoint, session = router
+    with running_cli(*_instance(endpoint)) as proc:
+        wait_until(lambda: _group_status(session) != {}, what="the instance up")
+        threads_before, rss_before = _threads_and_rss(proc.pid)
+        tokens = [announce(session, f"cams/f{i}/image") for i in range(10_000)]
+        wait_until(
+            lambda: (
+                [(g["streams"], len(g["held"])) for g in _group_status(session).values()]
+                == [(1024, 16)]
+            ),
+            what="1,024 streams kept, 16 held",
+        )
+        threads, rss = _threads_and_rss(proc.pid)
+        print(f"threads {threads_before} -> {threads}, RSS {rss_before} -> {rss} MB")
+        assert threads - threads_before < 16  # no thread per held stream
+        stop = threading.Event()
+
+        def churn() -> None:
+            i = 0
+            while not stop.is_set():
+                tokens[i % len(tokens)].undeclare()
+                tokens[i % len(tokens)] = announce(session, f"cams/g{i}/image")
+                i += 1
+
+        churner = threading.Thread(target=churn, daemon=True)
+        churner.start()
+        try:
+            code, seconds = sigterm_exit(proc, timeout=30.0)
+        finally:
+            stop.set()
+            churner.join()
+        print(f"SIGTERM during the churn: exit {code} after {seconds * 1e3:.0f} ms")
+        assert code == 0
+    for token in tokens:
+        token.undeclare()

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from zenoh_perception.wire.stream_keys import (
     STREAM,
     StreamNames,
+    colliding_keys,
     has_wildcard,
     key_entries,
     stream_key,
@@ -141,3 +142,19 @@ def test_the_cameras_of_a_list_come_back_as_their_names(names: list[str]) -> Non
     """Cameras listed as ``rover/<name>/image``: each key names its camera's stream."""
     streams = StreamNames(tuple(f"rover/{name}/image" for name in names))
     assert [streams.name(f"rover/{name}/image") for name in names] == names
+
+
+@pytest.mark.parametrize("pattern", ["x/**/cam/**", "**/x/**", "a/**/b/**/c", "a/**/b/*/**"])
+def test_two_double_wildcards_can_give_two_keys_one_name(pattern: str) -> None:
+    pair = colliding_keys(pattern)
+    assert pair is not None
+    first, second = pair
+    assert first != second
+    assert stream_name(pattern, first) == stream_name(pattern, second) is not None
+
+
+@pytest.mark.parametrize(
+    "pattern", ["cams/*/image", "rover/**/image", "a/*/**", "a/**/b/*", "a/**/**", "cam$*/x"]
+)
+def test_one_double_wildcard_gives_every_key_its_own_name(pattern: str) -> None:
+    assert colliding_keys(pattern) is None

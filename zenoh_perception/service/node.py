@@ -44,7 +44,7 @@ import zenoh
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import ProcessingError, SessionError, zenoh_error_text
 from zenoh_perception.service import report
-from zenoh_perception.service.group import StreamGroup
+from zenoh_perception.service.group import StreamGroup, camera_sources, settings_fingerprint
 from zenoh_perception.service.inputs import COMPRESSED, RAW, ROS, input_patterns, name_of, role_of
 from zenoh_perception.service.liveliness import OtherServices
 from zenoh_perception.service.logs import kv
@@ -67,6 +67,7 @@ from zenoh_perception.service.stream import (
     Shared,
     Stream,
 )
+from zenoh_perception.service.threads import guarded_thread
 from zenoh_perception.service.workers import Workers, usable_cpus
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.records import TagCodec
@@ -152,7 +153,9 @@ class PerceptionService:
         self._patterns = input_patterns(settings)
         #: Set when a worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
-        self._workers = Workers(self._scheduler, self._stop, self.failed, self._streams.guarded)
+        self._workers = Workers(
+            self._scheduler, self._stop, self.failed, self._streams.guarded, pulse=self._pulse
+        )
         self._declared: list[Any] = []
         self._group: StreamGroup | None = None  # with share_group: the streams held
         self._threads: list[threading.Thread] = []
@@ -208,14 +211,10 @@ class PerceptionService:
                 f"{s.liveliness_key}/*", self._others.on_token, history=True
             )
         )
-        self._threads = [
-            threading.Thread(target=self._report, name="perception-stats", daemon=True)
-        ]
+        self._threads = [guarded_thread(self._report, name="perception-stats", failed=self.failed)]
         if s.frame_deadline_ms > 0 and s.detector_process != "always":
             self._threads.append(
-                threading.Thread(
-                    target=self._workers.watch, name="perception-watchdog", daemon=True
-                )
+                guarded_thread(self._workers.watch, name="perception-watchdog", failed=self.failed)
             )
         for thread in self._threads:
             thread.start()
@@ -227,9 +226,13 @@ class PerceptionService:
                 session,
                 name=s.share_group,
                 liveliness_key=s.liveliness_key,
-                patterns=[*s.entries("input_key"), *s.entries("compressed_input_key")],
+                sources=camera_sources(s),
+                fingerprint=settings_fingerprint(s),
+                capacity=s.max_streams,
                 take=self.hold,
                 release=self.release,
+                gate=self._gate,
+                failed=self.failed,
             )
             self._group.start()
             return
@@ -310,8 +313,10 @@ class PerceptionService:
             if stream_key in self._held or self._stop.is_set():
                 return
             try:
+                # called on Zenoh's own thread (O(1)): no thread of its own per held stream
                 self._held[stream_key] = self._session.declare_subscriber(
-                    stream_key, partial(self._on_input, role)
+                    stream_key,
+                    zenoh.handlers.Callback(partial(self._on_input, role), indirect=False),
                 )
             except zenoh.ZError as err:
                 msg = f"cannot subscribe {stream_key!r}: {zenoh_error_text(err)}"
@@ -341,6 +346,12 @@ class PerceptionService:
     def streams(self) -> list[str]:
         """The keys of the streams served now (the key each one's last frame came on)."""
         return [stream.key for stream in self._streams.by_key()]
+
+    def _pulse(self) -> None:
+        """The worker loop's heartbeat (a share group's proof that this instance works)."""
+        group = self._group
+        if group is not None:
+            group.beat()
 
     def _role_of(self, key: str) -> str:
         """The input whose samples ``key`` carries (SettingsError: none, or not concrete)."""

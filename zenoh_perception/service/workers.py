@@ -63,11 +63,16 @@ class Workers:
         stop: threading.Event,
         failed: threading.Event,
         guarded: Callable[[], list[Stream]],
+        *,
+        pulse: Callable[[], None] = lambda: None,
     ) -> None:
         self._scheduler = scheduler
         self._stop = stop
         self._failed = failed
         self._guarded = guarded
+        #: Called on every turn of every worker's loop (a share group's heartbeat: it stops
+        #: when the workers stop).
+        self._pulse = pulse
         self._workers: list[threading.Thread] = []
         #: Workers whose read the watchdog abandoned (each ends on its own).
         self._abandoned: set[int | None] = set()
@@ -90,6 +95,7 @@ class Workers:
         replaced = False
         try:
             while not self._stop.is_set():
+                self._pulse()
                 taken = self._scheduler.take(_POLL_S)
                 if taken is None:
                     continue

@@ -155,3 +155,38 @@ class StreamNames:
         if len(self.entries) == 1:
             return "" if not has_wildcard(entry) else entry
         return "/".join(chunks[self._head : len(chunks) - self._tail])
+
+
+def colliding_keys(pattern: str) -> tuple[str, str] | None:
+    """Two concrete keys ``pattern`` matches that :func:`stream_name` gives one name (None:
+    every key it matches has a name of its own).
+
+    Only a pattern of two ``**`` or more can: with one, the number of chunks each wildcard
+    took follows from the name's length. The pair is found by trying small keys: each ``**``
+    as nothing, one or two chunks (the pattern's own verbatim chunks among them), each other
+    wildcard chunk as one chunk.
+    """
+    chunks = pattern.split("/")
+    if chunks.count("**") < 2:
+        return None
+    literals = sorted({c for c in chunks if not has_wildcard(c)})
+    fills = ["", "a", "a/b", *literals]
+    fills += [*(f"a/{c}" for c in literals), *(f"{c}/a" for c in literals)]
+    keys = [""]
+    for chunk in chunks:
+        if chunk == "**":
+            options = fills
+        elif has_wildcard(chunk):
+            options = [chunk.replace("$*", "a").replace("*", "a")]
+        else:
+            options = [chunk]
+        keys = [f"{k}/{o}" if k and o else k or o for k in keys for o in options][:4096]
+    seen: dict[str, str] = {}
+    for key in keys:
+        name = stream_name(pattern, key) if key else None
+        if name is None:
+            continue
+        first = seen.setdefault(name, key)
+        if first != key:
+            return first, key
+    return None
