@@ -115,11 +115,12 @@ CHECK_S: Final = 0.25
 class CameraSource:
     """Where a group learns streams: the liveliness key expression it watches (``watch``),
     and what a token there announces (``read``: the token's key -> the stream's concrete key
-    and its name, or :class:`~zenoh_perception.errors.AnnouncementError`; nothing else may
-    raise)."""
+    and its name; None for a ROS graph's publisher that is not one of the cameras served,
+    which is no announcement at all; or :class:`~zenoh_perception.errors.AnnouncementError`;
+    nothing else may raise)."""
 
     watch: str
-    read: Callable[[str], tuple[str, str]]
+    read: Callable[[str], tuple[str, str] | None]
 
 
 def settings_fingerprint(settings: Settings) -> str:
@@ -187,21 +188,27 @@ def _read_camera_token(role: str, names: StreamNames, token: str) -> tuple[str, 
     return key, _stream(role, names, check_announced_key(key), token)[1]
 
 
-def _read_bridge_token(by_type: dict[str, tuple[str, StreamNames]], token: str) -> tuple[str, str]:
+def _read_bridge_token(
+    by_type: dict[str, tuple[str, StreamNames]], token: str
+) -> tuple[str, str] | None:
+    """A bridge's route of a camera served, or None: a ROS graph routes many topics (other
+    types, other cameras, the service's own outputs) and none of them is announced to a group."""
     try:
         route = parse_bridge_token(token)
     except BridgeTokenError as err:
         raise AnnouncementError("bad_bridge_token", token) from err
     camera = by_type.get(route.ros_type)
     if route.kind is not BridgeKind.PUBLISHER or camera is None:
-        raise AnnouncementError("no_match", token)
+        return None
     key = check_announced_key(route.key)
-    return key, _stream(*camera, key, token)[1]
+    role, names = camera
+    return None if names.name(key) is None else (key, _stream(role, names, key, token)[1])
 
 
 def _read_rmw_token(
     by_dds: dict[str, tuple[str, str, StreamNames]], domain: int, namespace: str, token: str
-) -> tuple[str, str]:
+) -> tuple[str, str] | None:
+    """An rmw_zenoh publisher of a camera served, or None (any other publisher of the graph)."""
     if any(c in token for c in "*$?#"):
         raise AnnouncementError("not_concrete", token)
     try:
@@ -216,10 +223,13 @@ def _read_rmw_token(
         or camera is None
         or not publisher.topic.startswith(prefix)
     ):
-        raise AnnouncementError("no_match", token)
+        return None
     ros_type, role, names = camera
     key = topic_key(domain, publisher.topic, ros_type, publisher.type_hash)
-    return check_announced_key(key), _stream(role, names, publisher.topic[len(prefix) :], token)[1]
+    topic = publisher.topic[len(prefix) :]
+    if names.name(topic) is None:
+        return None
+    return check_announced_key(key), _stream(role, names, topic, token)[1]
 
 
 def _direct(callback: Callable[[zenoh.Sample], None]) -> zenoh.handlers.Callback[zenoh.Sample]:
@@ -493,7 +503,10 @@ class StreamGroup:
             if not self._fresh(token, present=present, answer=answer):
                 return
             try:
-                key, name = source.read(token)
+                read = source.read(token)
+                if read is None:
+                    return
+                key, name = read
                 with self._lock:
                     if present:
                         changed = self._streams.add(key, name, token)
