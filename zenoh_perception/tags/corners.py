@@ -6,10 +6,10 @@ again in the grey image, the way the AprilTag engine refines its quads: samples 
 the side, at each one the grey profile read across the side (bilinear), the edge placed at
 the centre of mass of the profile's dark-to-light step; a line is fitted through those edge
 points (total least squares) and the corners are where neighbouring lines cross. The search
-reaches less than half a cell to either side, so that it sees the border's outer edge and
-neither the marker's inner cells nor what lies past its quiet zone; a second pass searches
-again around the first pass's lines. A corner that would move farther than
-:data:`MAX_MOVE_CELLS` of a cell keeps OpenCV's position.
+reaches 0.7 of a cell to either side: outwards it stays within the quiet zone, inwards within
+the black border (the border's inner edge, a cell in, rises the other way and does not weigh);
+a second pass searches again around the first pass's lines. A corner that would move farther
+than :data:`MAX_MOVE_CELLS` of a cell keeps OpenCV's position.
 
 Measured against exact ground truth (docs/benchmarks.md, "Poses"): about ten times closer to
 the true corners than OpenCV's CORNER_REFINE_SUBPIX on tags of 40 px and more, and never
@@ -30,10 +30,11 @@ import numpy.typing as npt
 
 #: A refined corner farther than this many cells from OpenCV's is not trusted (a side's
 #: samples caught something other than the border's edge): OpenCV's corner is kept.
-MAX_MOVE_CELLS: Final = 0.5
+MAX_MOVE_CELLS: Final = 0.75
 #: The search across a side reaches this share of a cell either way, within the bounds below
-#: (pixels): less than half a cell sees only the border's outer edge.
-_REACH_CELLS: Final = 0.45
+#: (pixels). Measured on tags of 9-200 px: 0.45 of a cell is 2 to 3 times less precise on
+#: tags under 40 px (the blurred edge is cut off), 0.9 no better than 0.7.
+_REACH_CELLS: Final = 0.7
 _MIN_REACH_PX: Final = 1.0
 _MAX_REACH_PX: Final = 4.0
 #: Spacing of the samples across a side (pixels).
@@ -41,6 +42,8 @@ _STEP_PX: Final = 0.5
 #: Samples along a side: one every 2 px, at least 3 and at most this many.
 _MAX_SAMPLES: Final = 24
 _PASSES: Final = 2
+#: A sample whose dark-to-light step is below this share of the median sample's is left out.
+_WEAK_STEP: Final = 0.5
 #: Cells across a marker with its border, when the dictionary is not known: the most any
 #: predefined dictionary has (7x7 bits), so that the search and the accepted move stay small.
 _DEFAULT_CELLS: Final = 9
@@ -132,7 +135,9 @@ def _fit_pass(
     # the edge at the centre of mass of the dark-to-light step outwards
     steps = np.maximum(levels[:, :, 1:] - levels[:, :, :-1], 0.0)
     weights = steps.sum(2)
-    usable = weights > 0.0
+    # a sample whose step is weaker than half the typical one missed the edge (its reach
+    # fell short of it, or something covers it): noise alone would pull the line to it
+    usable = weights > _WEAK_STEP * float(np.median(weights))
     kept = usable.sum(1)
     if kept.min() < 2:
         return None
