@@ -83,10 +83,11 @@ def refine_corners(
     reach = min(max(_REACH_CELLS * cell, _MIN_REACH_PX), _MAX_REACH_PX)
     across = np.arange(-reach, reach + 1e-9, _STEP_PX)
     middles = ((across[:-1] + across[1:]) * 0.5).astype(np.float32)
-    along = np.linspace(0.0, 1.0, int(min(_MAX_SAMPLES, max(3, lengths.min() // 2))))
+    samples = int(min(_MAX_SAMPLES, max(3, lengths.min() // 2)))
+    along = np.arange(samples) / (samples - 1.0)
     # outward normals: the quad's winding says on which side of each edge the marker lies
     winding = float(np.sum(given[:, 0] * given[_NEXT, 1] - given[_NEXT, 0] * given[:, 1]))
-    turn = 1.0 if winding > 0 else -1.0
+    turn = np.array([1.0, -1.0] if winding > 0 else [-1.0, 1.0])[:, None, None]
     current = given
     for _ in range(_PASSES):
         fitted = _fit_pass(
@@ -108,26 +109,25 @@ def _fit_pass(
     across: npt.NDArray[np.float64],
     middles: npt.NDArray[np.float32],
     along: npt.NDArray[np.float64],
-    turn: float,
+    turn: npt.NDArray[np.float64],
 ) -> npt.NDArray[np.float64] | None:
     """One pass of the edge fit around the sides of ``quad``; None where it fails. (x and y
-    are kept in arrays of their own: numpy is slow on a last axis of 2.)"""
-    qx, qy = quad[:, 0:1], quad[:, 1:2]
-    dx, dy = qx[_NEXT] - qx, qy[_NEXT] - qy
-    lengths = np.sqrt(dx * dx + dy * dy)
-    nx, ny = dy * (turn / lengths), dx * (-turn / lengths)
+    lead the arrays, (2, 4, ...): numpy is slow on a last axis of 2, and each step is one call
+    for both.)"""
+    q = quad.T[:, :, None]
+    sides = q[:, _NEXT] - q
+    lengths = np.sqrt((sides * sides).sum(0))
+    normals = sides[::-1] * (turn / lengths)
     # samples along each side, clear of the corners (where the other side's edge is seen)
     margin = np.minimum((reach + 1.0) / lengths, 0.3)
-    spots = margin + (1.0 - 2.0 * margin) * along
-    bx, by = qx + spots * dx, qy + spots * dy
+    bases = q + (margin + (1.0 - 2.0 * margin) * along) * sides
     # the grey profile across the side at each sample, read by OpenCV (bilinear)
-    map_x = (bx[:, :, None] + across * nx[:, :, None]).astype(np.float32)
-    map_y = (by[:, :, None] + across * ny[:, :, None]).astype(np.float32)
+    maps = (bases[..., None] + across * normals[..., None]).astype(np.float32)
     count, width = along.size, across.size
     profiles = cv2.remap(
         gray,
-        map_x.reshape(4 * count, width),
-        map_y.reshape(4 * count, width),
+        maps[0].reshape(4 * count, width),
+        maps[1].reshape(4 * count, width),
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
     ).reshape(4, count, width)
@@ -142,20 +142,18 @@ def _fit_pass(
     if kept.min() < 2:
         return None
     offsets = np.where(usable, (steps @ middles) / np.maximum(weights, 1e-6), 0.0)
-    ex, ey = bx + offsets * nx, by + offsets * ny
+    edges = bases + offsets * normals
     # a line through each side's edge points: centroid and principal direction
-    cx = np.where(usable, ex, 0.0).sum(1) / kept
-    cy = np.where(usable, ey, 0.0).sum(1) / kept
-    sx, sy = np.where(usable, ex - cx[:, None], 0.0), np.where(usable, ey - cy[:, None], 0.0)
-    angle = 0.5 * np.arctan2(2.0 * (sx * sy).sum(1), (sx * sx).sum(1) - (sy * sy).sum(1))
+    centroids = np.where(usable, edges, 0.0).sum(2) / kept
+    spread = np.where(usable, edges - centroids[..., None], 0.0)
+    sxx, syy = (spread * spread).sum(2)
+    sxy = (spread[0] * spread[1]).sum(1)
+    angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     # lines a x + b y = c, a corner where the previous side's line meets its own side's
     a, b = -np.sin(angle), np.cos(angle)
-    c = a * cx + b * cy
+    c = a * centroids[0] + b * centroids[1]
     a0, b0, c0 = a[_PREVIOUS], b[_PREVIOUS], c[_PREVIOUS]
     det = a0 * b - a * b0
     if np.abs(det).min() < 1e-9:
         return None
-    corners = np.empty((4, 2))
-    corners[:, 0] = (c0 * b - c * b0) / det
-    corners[:, 1] = (a0 * c - a * c0) / det
-    return corners
+    return np.stack(((c0 * b - c * b0) / det, (a0 * c - a * c0) / det), axis=1)

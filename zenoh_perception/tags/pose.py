@@ -177,10 +177,9 @@ def estimate_pose(
 
 def rotation_angle_deg(first: Sequence[float], second: Sequence[float]) -> float:
     """The angle (degrees) of the rotation from Rodrigues vector ``first`` to ``second``."""
-    a, _ = cv2.Rodrigues(np.asarray(first, np.float64).reshape(3, 1))
-    b, _ = cv2.Rodrigues(np.asarray(second, np.float64).reshape(3, 1))
-    cosine = (float(np.trace(a.T @ b)) - 1.0) / 2.0
-    return math.degrees(math.acos(min(1.0, max(-1.0, cosine))))
+    p, q = quaternion_from_rvec(first), quaternion_from_rvec(second)
+    dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
+    return math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
 #: Below this rotation angle (radians) sin(angle / 2) / angle is taken from its Taylor series.
