@@ -17,6 +17,7 @@ from zenoh_perception.tags.geometry import closeness_from_area
 from zenoh_perception.tags.pose import Intrinsics
 from zenoh_perception.tags.selection import NO_TAG, Metric, Policy, selected_message
 from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta, decode_raw_frame
+from zenoh_perception_bench.poses import project, tag_rotation
 from zenoh_perception_bench.scene import render_markers
 from zenoh_perception_bench.scene.lookalikes import lookalike_frame
 
@@ -231,3 +232,56 @@ def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> Non
             tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
         )
         assert staged.begin(frame).selected == expected
+
+
+def _opencv_corners(frame: Frame) -> dict[int, npt.NDArray[np.float32]]:
+    analysis = Pipeline(Settings(refine_corners=False)).process(frame)
+    return {tag.tag_id: np.array(tag.corners, np.float32) for tag in analysis.tags}
+
+
+def test_published_corners_are_refined_and_the_tags_found_are_opencv_s() -> None:
+    # exact renders: the true outer corners are the squares drawn
+    truth = dict(TWO_TAGS)
+    frame = _frame(TWO_TAGS)
+    opencv = _opencv_corners(frame)
+    analysis = Pipeline(Settings()).process(frame)
+    assert sorted(tag.tag_id for tag in analysis.tags) == sorted(opencv)
+    for tag in analysis.tags:
+        refined = np.array(tag.corners)
+        worst = np.linalg.norm(refined - truth[tag.tag_id], axis=1).max()
+        assert worst < 0.1 < np.linalg.norm(opencv[tag.tag_id] - truth[tag.tag_id], axis=1).max()
+        assert (tag.x, tag.y) == pytest.approx(tuple(refined.mean(axis=0)))
+
+
+def test_refinement_moves_a_detector_s_corners_onto_the_edges_unless_switched_off() -> None:
+    truth = _square(100, 100, 120)
+    frame = _frame([(7, truth)])
+    given = (truth + 0.7).astype(np.float32)  # a detector's corners, 0.7 px off
+    refined = Pipeline(Settings(verify=False), _Fixed(Detection(7, given))).process(frame)
+    assert np.linalg.norm(np.array(refined.tags[0].corners) - truth, axis=1).max() < 0.1
+    unrefined = Pipeline(Settings(verify=False, refine_corners=False), _Fixed(Detection(7, given)))
+    assert unrefined.process(frame).tags[0].corners == tuple(map(tuple, given.tolist()))
+
+
+def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric() -> None:
+    camera = Intrinsics(500.0, 500.0, 319.5, 239.5)
+    settings = Settings(
+        metric="distance",
+        tag_size_m=0.2,
+        camera_fx=camera.fx,
+        camera_fy=camera.fy,
+        camera_cx=camera.cx,
+        camera_cy=camera.cy,
+    )
+
+    def seen(distance: float, yaw: float) -> Detection:
+        corners = project(
+            tag_rotation(yaw, 5.0, 10.0), np.array([0.1, 0.05, distance]), camera.matrix()
+        )
+        return Detection(1, corners.astype(np.float32))
+
+    far = observe(seen(8.0, 10.0), 640, 480, settings, camera)
+    assert far.ambiguous and far.pose_errors is not None and far.distance_m is not None
+    assert far.metric == Metric.AREA
+    near = observe(seen(1.0, 40.0), 640, 480, settings, camera)
+    assert not near.ambiguous and near.metric == Metric.DISTANCE

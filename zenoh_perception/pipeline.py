@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 import cv2
@@ -16,6 +16,7 @@ from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import REASONS, Verifier
 from zenoh_perception.settings import Settings
+from zenoh_perception.tags.corners import marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (
     closeness_from_area,
     closeness_from_distance,
@@ -64,8 +65,8 @@ def observe(
 ) -> TagObservation:
     """Geometry of one detection: centre, area, closeness and (when possible) pose.
 
-    With ``metric = "distance"`` the closeness is the pose's distance when there is a pose,
-    else the area closeness; the observation's ``metric`` says which.
+    With ``metric = "distance"`` the closeness is the pose's distance when there is a pose
+    that is not ambiguous, else the area closeness; the observation's ``metric`` says which.
     """
     x, y = tag_center(detection.corners)
     area = polygon_area(detection.corners)
@@ -78,7 +79,7 @@ def observe(
             detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
         )
     metric = Metric.AREA
-    if settings.metric == Metric.DISTANCE:
+    if settings.metric == Metric.DISTANCE and not pose.ambiguous:
         closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
         metric = Metric.DISTANCE
     return TagObservation(
@@ -93,7 +94,17 @@ def observe(
         pose.tvec,
         metric,
         detection.dictionary,
+        pose.ambiguous,
+        pose.errors,
     )
+
+
+def refined(gray: Gray, detection: Detection) -> Detection:
+    """``detection`` with its corners refined by an edge fit
+    (:func:`~zenoh_perception.tags.corners.refine_corners`): its id and dictionary as OpenCV
+    decided them."""
+    corners, _ = refine_corners(gray, detection.corners, marker_cells(detection.dictionary))
+    return replace(detection, corners=corners.astype(np.float32))
 
 
 def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
@@ -270,7 +281,11 @@ class Pipeline:
         if mismatch:
             intrinsics = None
 
+        refine = self.settings.refine_corners
+
         def observed(detection: Detection) -> TagObservation:
+            if refine:  # what is published is measured on refined corners
+                detection = refined(gray, detection)
             return observe(detection, width, height, self.settings, intrinsics)
 
         if not (detections and finder.judges_one_by_one):

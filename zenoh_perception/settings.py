@@ -219,6 +219,10 @@ class Settings:
         default=1,
         metadata=_doc("report a tag once seen on N frames in a row, about in place; 1 = at once"),
     )
+    refine_corners: bool = field(
+        default=True,
+        metadata=_doc("refine OpenCV's corners to sub-pixel by an edge fit along each side"),
+    )
     # Limits and budget
     max_frame_bytes: int = field(
         default=DEFAULT_MAX_FRAME_BYTES,

@@ -120,7 +120,10 @@ def test_verify_false_gives_opencvs_answer_unchanged() -> None:
     image = lookalike_frame("keys", "DICT_4X4_50", rng)
     expected = OpenCvDetector("DICT_4X4_50").detect(_grey(image))
     assert expected  # a frame OpenCV reads ids on, which the verifier would veto
-    off = Pipeline(Settings(verify=False)).process(_frame(image))
+    # OpenCV's corners too, with their refinement off (it moves corners, never adds or drops)
+    off = Pipeline(Settings(verify=False, refine_corners=False)).process(_frame(image))
+    refined = Pipeline(Settings(verify=False)).process(_frame(image))
+    assert [t.tag_id for t in refined.tags] == [d.tag_id for d in expected]
     assert [(t.tag_id, t.corners) for t in off.tags] == [
         (d.tag_id, tuple((float(x), float(y)) for x, y in d.corners.astype(np.float64)))
         for d in expected

@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose, quaternion_from_rvec
+from zenoh_perception.tags.pose import (
+    AMBIGUITY_FLOOR_PX,
+    AMBIGUITY_MIN_DEG,
+    Intrinsics,
+    Pose,
+    estimate_pose,
+    quaternion_from_rvec,
+    rotation_angle_deg,
+)
+from zenoh_perception_bench.poses import project, tag_rotation
 from zenoh_perception_bench.scene import CameraModel, MarkerPose, square_corners
 
 VGA = Intrinsics(500.0, 500.0, 319.5, 239.5)
@@ -159,3 +170,37 @@ def test_the_quaternion_is_the_rotation_opencv_makes_of_the_rvec(
     assert q[3] >= 0.0
     rotation, _ = cv2.Rodrigues(np.array(rvec, dtype=np.float64))
     np.testing.assert_allclose(_matrix_of_quaternion(q), rotation, atol=1e-9)
+
+
+def _projected(distance: float, yaw: float, pitch: float) -> np.ndarray:
+    """Exact corners of a 0.2 m tag ``distance`` metres away, turned ``yaw`` and ``pitch``
+    degrees from facing the camera (fx = 500), a little off the optical axis."""
+    rotation = tag_rotation(yaw, pitch, 10.0)
+    return project(rotation, np.array([0.1, 0.05, distance]), VGA.matrix())
+
+
+@pytest.mark.parametrize(("distance", "yaw", "pitch"), [(8.0, 10.0, 5.0), (6.0, 15.0, 0.0)])
+def test_a_far_tag_nearly_facing_the_camera_has_an_ambiguous_pose(
+    distance: float, yaw: float, pitch: float
+) -> None:
+    # 12-17 px: IPPE's mirror solution puts the corners within a few hundredths of a pixel
+    pose = estimate_pose(_projected(distance, yaw, pitch), 0.2, VGA)
+    assert pose is not None and pose.ambiguous
+    assert pose.errors is not None and pose.errors[1] < AMBIGUITY_FLOOR_PX
+    assert pose.other is not None
+    assert rotation_angle_deg(pose.rvec, pose.other[0]) > AMBIGUITY_MIN_DEG
+
+
+@pytest.mark.parametrize(("distance", "yaw", "pitch"), [(1.0, 40.0, 0.0), (2.0, 45.0, 10.0)])
+def test_a_near_turned_tag_has_a_clear_pose(distance: float, yaw: float, pitch: float) -> None:
+    corners = _projected(distance, yaw, pitch)
+    rng = np.random.default_rng(0)
+    pose = estimate_pose(corners + rng.normal(0.0, 0.05, corners.shape), 0.2, VGA)
+    assert pose is not None and not pose.ambiguous
+    # the mirror solution misses the corners by a pixel and more
+    assert pose.errors is not None and pose.errors[1] > 1.0 > 10 * pose.errors[0]
+
+
+def test_the_rotation_angle_between_rodrigues_vectors() -> None:
+    assert rotation_angle_deg((0.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2)) == pytest.approx(90.0)
+    assert rotation_angle_deg((0.1, 0.2, 0.3), (0.1, 0.2, 0.3)) == pytest.approx(0.0, abs=1e-3)

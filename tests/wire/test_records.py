@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+from dataclasses import replace
 from typing import Any
 
 import jsonschema
@@ -389,3 +390,16 @@ def test_a_decoded_record_always_prints_as_strict_json(changes: dict[str, object
         return
     json.dumps(decoded, allow_nan=False)
     format_decoded_record("k", decoded, as_json=False)
+
+
+def test_a_pose_says_whether_it_may_be_flipped_with_both_solutions_errors() -> None:
+    schema = _schema("perception-tags.schema.json")
+    flippable = replace(TAG, tag_id=8, metric=Metric.AREA, ambiguous=True, pose_errors=(0.04, 0.05))
+    record = decode_record(_record((TAG, flippable)).to_msgpack())
+    jsonschema.validate(record, schema)
+    clear, ambiguous = (tag["pose"] for tag in record["tags"])
+    assert clear["ambiguous"] is False and "reprojection_px" not in clear
+    assert ambiguous["ambiguous"] is True and ambiguous["reprojection_px"] == [0.04, 0.05]
+    ambiguous["ambiguous"] = "maybe"
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(record, schema)

@@ -4,6 +4,7 @@ TransformStamped, read back by rosbags with the pose the service found."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -58,3 +59,12 @@ def test_rosbags_reads_back_one_transform_per_tag_with_a_pose() -> None:
 def test_no_message_when_no_tag_has_a_pose() -> None:
     assert encode_tf([_tag(1, pose=False)], prefix="tag_", stamp_ns=0, frame_id="c") is None
     assert encode_tf([], prefix="tag_", stamp_ns=0, frame_id="c") is None
+
+
+def test_an_ambiguous_pose_is_not_published() -> None:
+    flippable = replace(_tag(4), ambiguous=True, pose_errors=(0.05, 0.06))
+    payload = encode_tf([_tag(9), flippable], prefix="tag_", stamp_ns=7, frame_id="cam")
+    assert payload is not None
+    msg: Any = TYPESTORE.deserialize_cdr(bytes(payload), TF_MESSAGE_TYPE)
+    assert [t.child_frame_id for t in msg.transforms] == ["tag_9"]
+    assert encode_tf([flippable], prefix="tag_", stamp_ns=7, frame_id="cam") is None

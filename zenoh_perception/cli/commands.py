@@ -492,6 +492,10 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     _need_bench_package("bench")
+    if args.poses:
+        from zenoh_perception_bench import poses  # noqa: PLC0415
+
+        return poses.main(args)
     if args.fleet:
         from zenoh_perception_bench import fleet  # noqa: PLC0415
 
@@ -627,6 +631,13 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         type=float,
         metavar="HZ",
         help="with --overhead: also HD1080 at HZ, frames answered per detector",
+    )
+    group.add_argument(
+        "--poses",
+        action="store_true",
+        help="tag poses against exact ground truth (rendered HD720 and VGA frames, 1-10 m): "
+        "rotation and distance errors of the service and of OpenCV's corner refinements, "
+        "flipped poses marked ambiguous, cost a tag",
     )
     group = parser.add_argument_group("several instances")
     group.add_argument(

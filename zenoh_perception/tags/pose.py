@@ -3,6 +3,14 @@
 Images are assumed rectified (the ZED wrapper publishes rectified left images), so lens
 distortion is ignored. The pose is OpenCV's IPPE_SQUARE solution of the four corners, or
 SQPNP's where IPPE_SQUARE's does not reproject onto them.
+
+A square seen small or nearly face-on has two poses that put its corners almost equally well
+(IPPE's two solutions, mirror images about the line of sight): the corners' noise decides
+between them, and the wrong one is a pose tilted the other way, tens of degrees off. A pose is
+marked ``ambiguous`` when the second solution reprojects within :data:`AMBIGUITY_RATIO` of the
+first's error (floored at :data:`AMBIGUITY_FLOOR_PX`) and turns more than
+:data:`AMBIGUITY_MIN_DEG` away from it; both errors are kept. The thresholds are set from
+``zenoh-perception bench --poses`` (docs/benchmarks.md, "Poses").
 """
 
 from __future__ import annotations
@@ -38,6 +46,13 @@ class Pose:
 
     rvec: tuple[float, float, float]
     tvec: tuple[float, float, float]
+    #: IPPE's other solution fits the corners about as well and is turned the other way.
+    ambiguous: bool = False
+    #: RMS reprojection errors (pixels) of this solution and of IPPE's other one (None: no
+    #: other solution, as from SQPNP).
+    errors: tuple[float, float] | None = None
+    #: IPPE's other solution (rvec, tvec), for a caller that can choose between them.
+    other: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
     @property
     def distance_m(self) -> float:
@@ -56,8 +71,85 @@ def _object_points(size_m: float) -> npt.NDArray[np.float64]:
 #: not trusted: IPPE_SQUARE can return the identity rotation, or NaN, for an exactly
 #: fronto-parallel, noise-free quad.
 MAX_REPROJECTION_PX = 1.0
-#: Solvers in the order they are tried: IPPE_SQUARE (made for square markers), then SQPNP.
-_SOLVERS = (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_SQPNP)
+#: Ambiguous: the second solution's RMS error below this times the first's ...
+AMBIGUITY_RATIO: Final = 1.5
+#: ... the first's taken as at least this (pixels: refined corners' noise on a clear tag) ...
+AMBIGUITY_FLOOR_PX: Final = 0.05
+#: ... and the two rotations this many degrees apart or more (closer, neither is a flip).
+AMBIGUITY_MIN_DEG: Final = 15.0
+
+
+def _vector(values: npt.ArrayLike) -> tuple[float, float, float]:
+    v = np.asarray(values, np.float64).reshape(3)
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _largest_offset(
+    object_points: npt.NDArray[np.float64],
+    image_points: npt.NDArray[np.float64],
+    camera: npt.NDArray[np.float64],
+    rotation: npt.ArrayLike,
+    translation: npt.ArrayLike,
+) -> float:
+    """How far (pixels) the farthest corner reprojects from ``image_points``; inf for a
+    solution that is not finite."""
+    rvec = np.asarray(rotation, np.float64)
+    tvec = np.asarray(translation, np.float64)
+    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+        return math.inf
+    projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera, None)
+    error = float(np.abs(projected.reshape(4, 2) - image_points).max())
+    return error if math.isfinite(error) else math.inf
+
+
+def _ippe(
+    object_points: npt.NDArray[np.float64],
+    image_points: npt.NDArray[np.float64],
+    camera: npt.NDArray[np.float64],
+) -> tuple[float, Pose] | None:
+    """IPPE_SQUARE's best solution, marked ambiguous as the module says, with its largest
+    corner offset; None when it has no finite solution."""
+    try:
+        count, rvecs, tvecs, rms = cv2.solvePnPGeneric(
+            object_points, image_points, camera, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+        )
+    except cv2.error:
+        return None
+    if count < 1:
+        return None
+    offset = _largest_offset(object_points, image_points, camera, rvecs[0], tvecs[0])
+    if not math.isfinite(offset):
+        return None
+    rvec, tvec = _vector(rvecs[0]), _vector(tvecs[0])
+    errors = np.asarray(rms, np.float64).reshape(-1)
+    finite = count >= 2 and np.all(np.isfinite(rvecs[1])) and np.all(np.isfinite(tvecs[1]))
+    if not finite or errors.size < 2 or not np.all(np.isfinite(errors[:2])):
+        return offset, Pose(rvec, tvec)
+    first, second = float(errors[0]), float(errors[1])
+    apart = rotation_angle_deg(rvec, _vector(rvecs[1]))
+    ambiguous = (
+        second < AMBIGUITY_RATIO * max(first, AMBIGUITY_FLOOR_PX) and apart >= AMBIGUITY_MIN_DEG
+    )
+    other = (_vector(rvecs[1]), _vector(tvecs[1]))
+    return offset, Pose(rvec, tvec, ambiguous, (first, second), other)
+
+
+def _sqpnp(
+    object_points: npt.NDArray[np.float64],
+    image_points: npt.NDArray[np.float64],
+    camera: npt.NDArray[np.float64],
+) -> tuple[float, Pose] | None:
+    """SQPNP's solution with its largest corner offset; None when it does not solve."""
+    try:
+        ok, rvec, tvec = cv2.solvePnP(
+            object_points, image_points, camera, None, flags=cv2.SOLVEPNP_SQPNP
+        )
+    except cv2.error:
+        return None  # degenerate corners (SQPNP refuses collinear points)
+    offset = _largest_offset(object_points, image_points, camera, rvec, tvec) if ok else math.inf
+    if not math.isfinite(offset):
+        return None
+    return offset, Pose(_vector(rvec), _vector(tvec))
 
 
 def estimate_pose(
@@ -65,8 +157,9 @@ def estimate_pose(
 ) -> Pose | None:
     """Pose of a square tag of edge ``size_m`` seen at ``corners``; None if it cannot be solved.
 
-    The first solver's solution whose corners reproject within MAX_REPROJECTION_PX of
-    ``corners``; otherwise the one that reprojects closest.
+    IPPE_SQUARE's best solution (marked ambiguous or not) where its corners reproject within
+    MAX_REPROJECTION_PX of ``corners``; otherwise whichever of it and SQPNP's reprojects
+    closest.
     """
     if size_m <= 0.0:
         return None
@@ -75,27 +168,18 @@ def estimate_pose(
         return None
     object_points = _object_points(size_m)
     camera = intrinsics.matrix()
-    best: tuple[float, Pose] | None = None
-    for solver in _SOLVERS:
-        try:
-            ok, rvec, tvec = cv2.solvePnP(object_points, image_points, camera, None, flags=solver)
-        except cv2.error:
-            continue  # degenerate corners (SQPNP refuses collinear points)
-        if not ok or not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
-            continue
-        projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera, None)
-        error = float(np.abs(projected.reshape(4, 2) - image_points).max())
-        if not np.isfinite(error):
-            continue
-        r, tr = rvec.reshape(3), tvec.reshape(3)
-        pose = Pose(
-            (float(r[0]), float(r[1]), float(r[2])), (float(tr[0]), float(tr[1]), float(tr[2]))
-        )
-        if error <= MAX_REPROJECTION_PX:
-            return pose
-        if best is None or error < best[0]:
-            best = (error, pose)
-    return None if best is None else best[1]
+    ippe = _ippe(object_points, image_points, camera)
+    if ippe is not None and ippe[0] <= MAX_REPROJECTION_PX:
+        return ippe[1]
+    found = [s for s in (ippe, _sqpnp(object_points, image_points, camera)) if s is not None]
+    return min(found, key=lambda s: s[0])[1] if found else None
+
+
+def rotation_angle_deg(first: Sequence[float], second: Sequence[float]) -> float:
+    """The angle (degrees) of the rotation from Rodrigues vector ``first`` to ``second``."""
+    p, q = quaternion_from_rvec(first), quaternion_from_rvec(second)
+    dot = abs(p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3])
+    return math.degrees(2.0 * math.acos(min(1.0, dot)))
 
 
 #: Below this rotation angle (radians) sin(angle / 2) / angle is taken from its Taylor series.

@@ -66,6 +66,10 @@ class TagObservation:
     tvec: tuple[float, float, float] | None = field(default=None)
     metric: Metric = Metric.AREA  # what ``closeness`` was computed from
     dictionary: str = ""  # the dictionary the id was decoded in ("" when not known)
+    #: the pose may be flipped (:mod:`zenoh_perception.tags.pose`): not ranked by, no /tf
+    ambiguous: bool = False
+    #: RMS reprojection errors (pixels) of the pose and of IPPE's other solution
+    pose_errors: tuple[float, float] | None = None
 
     def message(self) -> TagMessage:
         return TagMessage(self.tag_id, self.x, self.y, self.closeness)

@@ -94,7 +94,10 @@ def tag_entry(tag: TagObservation) -> dict[str, Any]:
             "rvec": list(tag.rvec),
             "tvec": list(tag.tvec),
             "quaternion": list(quaternion_from_rvec(tag.rvec)),
+            "ambiguous": bool(tag.ambiguous),
         }
+        if tag.pose_errors is not None:
+            entry["pose"]["reprojection_px"] = [float(e) for e in tag.pose_errors]
     return entry
 
 

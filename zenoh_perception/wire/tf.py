@@ -5,7 +5,8 @@ One geometry_msgs/msg/TransformStamped per tag with a pose: parent the frame's `
 ``<prefix><id>``, translation the pose's tvec in metres, rotation its rvec as a quaternion. The
 tag's own axes are OpenCV's ArUco axes (:mod:`zenoh_perception.tags.pose`'s object points):
 origin the marker's centre, x towards its right edge, y towards its top edge, z out of its
-face (towards a camera that sees it).
+face (towards a camera that sees it). A pose marked ambiguous (it may be flipped, see
+:mod:`zenoh_perception.tags.pose`) is not published: a tf consumer has no field to be told.
 """
 
 from __future__ import annotations
@@ -25,11 +26,12 @@ TF_TOPIC: Final = ros_topic("tf")
 def encode_tf(
     tags: Sequence[TagObservation], *, prefix: str, stamp_ns: int, frame_id: str
 ) -> memoryview | None:
-    """TFMessage CDR with the transform of every tag that has a pose; None when none has."""
+    """TFMessage CDR with the transform of every tag that has a pose not marked ambiguous;
+    None when none has."""
     types = TYPESTORE.types
     transforms = []
     for tag in tags:
-        if tag.rvec is None or tag.tvec is None:
+        if tag.rvec is None or tag.tvec is None or tag.ambiguous:
             continue
         x, y, z, w = quaternion_from_rvec(tag.rvec)
         tx, ty, tz = (float(v) for v in tag.tvec)
