@@ -3,8 +3,8 @@
 A 20 cm DICT_4X4_50 tag rendered by a pinhole projection (no distortion; edges
 supersampled by :func:`~zenoh_perception_bench.scene.render_markers`, then a Gaussian blur of
 sigma 0.4-1.2 px and sensor noise of sigma 2 grey levels) at 1-10 m, yawed and pitched up to
-60 degrees, rolled at random, anywhere in HD720 (fx = fy = 900) and VGA (fx = fy = 450) frames. Each frame goes
-through, side by side:
+60 degrees, rolled at random, anywhere in HD720 (fx = fy = 900) and VGA (fx = fy = 450)
+frames. Each frame goes through, side by side:
 
 - ``service``: the service's :class:`~zenoh_perception.pipeline.Pipeline` (its detector, veto,
   corner refinement and pose, with the frame's intrinsics and the tag size);
