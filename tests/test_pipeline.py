@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.scene import render_markers
@@ -135,7 +135,7 @@ def test_the_intrinsics_may_change_at_run_time() -> None:
     assert all(tag.distance_m is not None for tag in pipeline.process(_frame(TWO_TAGS)).tags)
 
 
-class _Fixed:
+class _Fixed(Detector):
     """A detector that reports the same detections whatever the frame."""
 
     def __init__(self, *detections: Detection) -> None:

@@ -139,8 +139,7 @@ class TagFinder:
         start = time.perf_counter()
         # a detector in another process offers the buffer it reads from (None: any array), so
         # that the grey image is not copied into it
-        buffer = getattr(self.detector, "gray_buffer", None)
-        gray = to_gray(frame, None if buffer is None else buffer(*frame.pixels.shape[:2]))
+        gray = to_gray(frame, self.detector.gray_buffer(*frame.pixels.shape[:2]))
         converted = time.perf_counter()
         detections = self.detector.detect(gray)
         if self._min_side_px > 0.0 and detections:
@@ -152,10 +151,7 @@ class TagFinder:
         where that look was left until after the frame's tag (see
         :mod:`~zenoh_perception.detect.second_look`); those at least ``min_side_px`` a side.
         Once per frame, after :meth:`detect`."""
-        later = getattr(self.detector, "look_again", None)
-        if later is None:
-            return []
-        added: list[Detection] = later()
+        added = self.detector.look_again()
         if self._min_side_px > 0.0 and added:
             added = [d for d in added if mean_side(d.corners) >= self._min_side_px]
         return added

@@ -17,7 +17,7 @@ import pytest
 
 from tools.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError, ProcessingError
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.service.watchdog import IsolatedDetector
@@ -27,7 +27,7 @@ from zenoh_perception.wire.frames import ENCODINGS, Frame, to_gray
 _STALL, _CRASH, _FAIL = 1, 2, 3
 
 
-class _Misbehaving:
+class _Misbehaving(Detector):
     """OpenCV's detector, except on an image whose first pixel says to stall, crash or fail."""
 
     def __init__(self) -> None:

@@ -13,7 +13,14 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.grids import GridKeeper
-from zenoh_perception.detect.types import Detection, Looker, dictionary_name, dictionary_names
+from zenoh_perception.detect.types import (
+    Detection,
+    Detector,
+    Due,
+    Looker,
+    dictionary_name,
+    dictionary_names,
+)
 
 
 def aruco_dictionary(name: str) -> Any:
@@ -90,7 +97,7 @@ def read_markers(
     return detections_from_opencv(corners, ids, offset, dictionaries, indices), rejected
 
 
-class OpenCvDetector:
+class OpenCvDetector(Detector):
     """OpenCV's ArUco detector, with OpenCV's default parameters.
 
     ``dictionary`` is one dictionary or several separated by commas; several are read in one
@@ -144,9 +151,9 @@ class OpenCvDetector:
         look = self.second_look
         if frame and look is not None:
             due = look.due(gray.shape, found)
-            if due == "now":
+            if due is Due.NOW:
                 found = look.look(image, found, self.grids.keep, self._rejected)
-            elif due == "later":
+            elif due is Due.LATER:
                 self._later = (image, found, self._rejected)
         return found
 

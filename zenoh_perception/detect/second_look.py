@@ -47,7 +47,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
 from zenoh_perception.detect.regions import same_marker
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Due
 from zenoh_perception.detect.verify import (
     Reading,
     decision_margin,
@@ -98,8 +98,8 @@ CORRECTED_MARGIN_BITS: Final = 1.0
 #: box in a label and a stroke of a printed character, 0.41 and 0.30.
 CORRECTED_MIN_SIDE_RATIO: Final = 0.6
 #: :meth:`SecondLook.due`: look before the frame's tag is chosen, or after it is out.
-NOW: Final = "now"
-LATER: Final = "later"
+NOW: Final = Due.NOW
+LATER: Final = Due.LATER
 
 
 def _likeness(image: npt.NDArray[np.uint8], quad: Quad, side: float) -> tuple[bool, float]:
@@ -146,7 +146,7 @@ class SecondLook:
         self._added = False  # the last look added a marker
         self.counters: dict[str, int] = {"looks": 0, "candidates": 0, "added": 0}
 
-    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
+    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> Due | None:
         """When the frame of ``shape`` whose default read found ``found`` gets the look:
         :data:`NOW`, :data:`LATER` or None (not at all); counts the frame."""
         index, previous = self._frames, self._previous

@@ -66,7 +66,7 @@ class _Read:
     answered: bool = False
 
 
-class GuardedDetector:
+class GuardedDetector(Detector):
     """A detector built by ``factory``, read in the calling thread and guarded by
     :meth:`check`; see the module documentation. One worker thread calls :meth:`detect` at a
     time (a new one only once the previous one's read was abandoned).
@@ -144,10 +144,9 @@ class GuardedDetector:
         """What the in-process detector's second look adds to the frame it read last, where
         that look was left until after the frame's tag; read under the deadline as
         :meth:`detect` is. [] while frames go to the child: its look is not taken."""
-        later = getattr(self._local, "look_again", None)
-        if later is None or self.in_child:
+        if self.in_child:
             return []
-        return self._in_process(later, answered=True)
+        return self._in_process(self._local.look_again, answered=True)
 
     def _in_process(
         self, read_once: Callable[[], list[Detection]], *, answered: bool

@@ -96,7 +96,7 @@ class _Child:
         self.conn.close()
 
 
-class IsolatedDetector:
+class IsolatedDetector(Detector):
     """A detector built by ``factory`` in a child process, each read bounded by
     ``deadline_s``; see the module documentation. Use it from one thread at a time.
 
