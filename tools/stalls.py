@@ -49,7 +49,7 @@ from zenoh_perception.bench.runners import DICTIONARY, rotation
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.scene import CameraModel, Effects, SceneGenerator
-from zenoh_perception.service.watchdog import IsolatedDetector
+from zenoh_perception.service.child_detector import IsolatedDetector
 from zenoh_perception.wire.frames import RawFrameMeta
 
 Gray = npt.NDArray[np.uint8]

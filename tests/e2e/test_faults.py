@@ -335,7 +335,7 @@ def test_connection_retries_are_logged_at_most_once_per_interval(
     endpoint: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Every retry of a client whose router is down is one log line without the rate limit."""
-    caplog.set_level(logging.WARNING, logger="zenoh_perception.service.node")
+    caplog.set_level(logging.WARNING, logger="zenoh_perception")
     attempts: list[int] = []
 
     def refuse(_conf: zenoh.Config) -> zenoh.Session:

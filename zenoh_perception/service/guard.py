@@ -1,7 +1,7 @@
 """Detection under a deadline at no per-frame cost: the detector runs in the calling thread, and
 only a frame that stalls it moves detection to a child process for a while.
 
-Handing every frame to a child process (:class:`~zenoh_perception.service.watchdog.
+Handing every frame to a child process (:class:`~zenoh_perception.service.child_detector.
 IsolatedDetector`) bounds every frame but costs each one two process wake-ups. Stalls are rare
 (a checkerboard, a tiled floor), so :class:`GuardedDetector` reads frames in the calling thread
 (the service's worker) and a watchdog thread calls :meth:`GuardedDetector.check`:
@@ -35,7 +35,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError
-from zenoh_perception.service.watchdog import DetectorFactory, IsolatedDetector
+from zenoh_perception.service.child_detector import DetectorFactory, IsolatedDetector
 
 #: After the last abandoned frame, seconds during which frames still go to the child.
 CALM_S: Final = 5.0

@@ -14,7 +14,7 @@ from zenoh_perception.service.stats import LogGate
 from zenoh_perception.settings import Settings
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 class OtherServices:

@@ -44,10 +44,19 @@ from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import ProcessingError, SessionError, zenoh_error_text
 from zenoh_perception.service import report
 from zenoh_perception.service.group import StreamGroup
-from zenoh_perception.service.inputs import COMPRESSED, RAW, ROS, input_patterns, name_of, role_of
+from zenoh_perception.service.inputs import (
+    CDR,
+    COMPRESSED,
+    DECODERS,
+    RAW,
+    Decoder,
+    StreamNaming,
+    kind_of,
+)
 from zenoh_perception.service.liveliness import OtherServices
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.mailbox import Scheduler
+from zenoh_perception.service.outputs import MSGPACK_ENCODING, PublisherPool
 from zenoh_perception.service.registry import StreamRegistry
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.session import (
@@ -58,18 +67,14 @@ from zenoh_perception.service.session import (
     warn_if_unlinked,
 )
 from zenoh_perception.service.stats import LogGate, ServiceStats
-from zenoh_perception.service.stream import (
-    MSGPACK_ENCODING,
-    Arrival,
-    Publishers,
-    Shared,
-    Stream,
-)
+from zenoh_perception.service.stream import Arrival, Shared, Stream
+from zenoh_perception.service.watchdog import watch
 from zenoh_perception.service.workers import Workers, usable_cpus
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import InputKind
 from zenoh_perception.wire.records import TagCodec
 
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 __all__ = ["MSGPACK_ENCODING", "PROCESSING_ERROR", "PerceptionService", "run"]
 
@@ -121,34 +126,32 @@ class PerceptionService:
         self._subscribe_inputs = subscribe_inputs
         self._stop = threading.Event()
         self._gate = LogGate(settings.log_interval_s)
+        self._log = LimitedLog(log, self._gate)
         self._others = OtherServices(settings, self._gate, zid=self._zid, stop=self._stop)
         self._scheduler: Scheduler[Stream, Arrival] = Scheduler()
-        #: Several streams: a wildcard or list input (a concrete key is one stream, made at
-        #: start).
-        self.wildcard = settings.several
+        #: What each stream is named, and whether lines name it.
+        self.naming = StreamNaming(settings, self._ros)
         self._shared = Shared(
             settings=settings,
             session=session,
             ros=self._ros,
-            publishers=Publishers(session, self._ros),
+            publishers=PublisherPool(session, self._ros),
             scheduler=self._scheduler,
             codec=TagCodec(settings.ros_package),
             gate=self._gate,
             totals=self.stats,
             instance=self._zid,
             stop=self._stop,
+            naming=self.naming,
             detector=detector,
-            named=self.wildcard,
         )
         self._streams = StreamRegistry(self._shared)
         # per held key: its subscription
         self._held: dict[str, Any] = {}
         self._held_lock = threading.Lock()
-        # how each input role's keys name their streams
-        self._patterns = input_patterns(settings)
         #: Set when a worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
-        self._workers = Workers(self._scheduler, self._stop, self.failed, self._streams.guarded)
+        self._workers = Workers(self._scheduler, self._stop, self.failed)
         self._declared: list[Any] = []
         self._group: StreamGroup | None = None  # with share_group: the streams held
         self._threads: list[threading.Thread] = []
@@ -176,7 +179,7 @@ class PerceptionService:
             self.settings,
             self._ros,
             zid=self._session.zid(),
-            named=self.wildcard,
+            named=self.naming.named,
             workers=self._worker_count(),
         )
 
@@ -185,10 +188,9 @@ class PerceptionService:
         node_token = self._ros.declare_node()
         if node_token is not None:
             self._declared.append(node_token)
-        if not self.wildcard:
-            # one stream, there from the start: its outputs declared and its detector's
-            # child processes ready before the first frame, as a single camera's service was
-            self._streams.open_single()
+        # the streams known before any frame: their outputs declared and their detectors'
+        # child processes ready before the first frame
+        self._streams.open_at_start()
         if s.camera_info_key:
             self._declared.extend(
                 self._ros.subscribe("camera_info", self._streams.camera_infos.on_sample)
@@ -207,10 +209,9 @@ class PerceptionService:
             threading.Thread(target=self._report, name="perception-stats", daemon=True)
         ]
         if s.frame_deadline_ms > 0 and s.detector_process != "always":
+            loop = partial(watch, self._streams.guarded, self._workers, self._scheduler, self._stop)
             self._threads.append(
-                threading.Thread(
-                    target=self._workers.watch, name="perception-watchdog", daemon=True
-                )
+                threading.Thread(target=loop, name="perception-watchdog", daemon=True)
             )
         for thread in self._threads:
             thread.start()
@@ -235,20 +236,21 @@ class PerceptionService:
         if self._ros.rmw_zenoh:
             # raw frames (msgpack attachment) keep coming on the plain keys
             for key in s.entries("input_key"):
-                self._declared.append(session.declare_subscriber(key, partial(self._on_input, RAW)))
+                self._declared.append(session.declare_subscriber(key, self._receiver(RAW)))
             if s.input_key:
-                self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, ROS)))
+                self._declared.extend(self._ros.subscribe("camera", self._receiver(CDR)))
         elif s.input_key:
-            self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, RAW)))
+            self._declared.extend(self._ros.subscribe("camera", self._receiver(RAW)))
         if s.compressed_input_key:
             self._declared.extend(
-                self._ros.subscribe("compressed_camera", partial(self._on_input, COMPRESSED))
+                self._ros.subscribe("compressed_camera", self._receiver(COMPRESSED))
             )
 
     def _worker_count(self) -> int:
         if self.settings.workers > 0:
             return self.settings.workers
-        return len(usable_cpus()) if self.wildcard or not self._subscribe_inputs else 1
+        several = self.naming.most_streams > 1 or not self._subscribe_inputs
+        return len(usable_cpus()) if several else 1
 
     def close(self) -> None:
         """Stop the workers, undeclare everything (the session itself is the caller's)."""
@@ -300,13 +302,13 @@ class PerceptionService:
             SessionError: Zenoh refused the subscription.
 
         """
-        role = self._role_of(stream_key)
+        kind = self._kind_of(stream_key)
         with self._held_lock:
             if stream_key in self._held or self._stop.is_set():
                 return
             try:
                 self._held[stream_key] = self._session.declare_subscriber(
-                    stream_key, partial(self._on_input, role)
+                    stream_key, self._receiver(kind)
                 )
             except zenoh.ZError as err:
                 msg = f"cannot subscribe {stream_key!r}: {zenoh_error_text(err)}"
@@ -319,12 +321,12 @@ class PerceptionService:
             subscriber = self._held.pop(stream_key, None)
             if subscriber is None:
                 return
-            others = [self._name_of(self._role_of(k), k) for k in self._held]
+            others = [self._name_of(k) for k in self._held]
         try:
             subscriber.undeclare()
         except zenoh.ZError as err:  # session closed
             log.debug("event=undeclare_failed %s", kv(error=err))
-        name = self._name_of(self._role_of(stream_key), stream_key)
+        name = self._name_of(stream_key)
         if name is not None and name not in others:
             self._streams.retire(name)
 
@@ -335,47 +337,42 @@ class PerceptionService:
 
     def streams(self) -> list[str]:
         """The keys of the streams served now (the key each one's last frame came on)."""
-        return [stream.key for stream in self._streams.by_key()]
+        return [stream.input_key for stream in self._streams.by_key()]
 
-    def _role_of(self, key: str) -> str:
+    def _kind_of(self, key: str) -> InputKind:
         """The input whose samples ``key`` carries (SettingsError: none, or not concrete)."""
-        return role_of(key, self.settings, self._ros)
+        return kind_of(key, self.settings, self._ros)
 
-    def _name_of(self, role: str, key: str) -> str | None:
-        """The name of the stream ``key`` (a sample's key on input ``role``) belongs to;
-        None when it matches no input."""
-        return name_of(role, key, self._patterns, self._ros) if self.wildcard else ""
+    def _name_of(self, key: str) -> str | None:
+        """The name of the stream the concrete ``key`` belongs to; None when it matches no
+        input."""
+        return self.naming.name(self._kind_of(key), key)
 
     # -- Zenoh callbacks: O(1), never block ---------------------------------------------------
 
-    def _on_input(self, role: str, sample: zenoh.Sample) -> None:
-        now = time.monotonic_ns()
-        arrival = Arrival(
-            sample, now, time.time_ns(), ros_cdr=role == ROS, compressed=role == COMPRESSED
-        )
-        name = "" if not self.wildcard else self._name_of(role, str(sample.key_expr))
+    def _receiver(self, kind: InputKind) -> partial[None]:
+        """The callback of a subscription to input ``kind``: its decoder bound here."""
+        return partial(self._on_input, kind, DECODERS[kind])
+
+    def _on_input(self, kind: InputKind, decode: Decoder, sample: zenoh.Sample) -> None:
+        arrival = Arrival(sample, time.monotonic_ns(), time.time_ns(), decode)
+        name = self.naming.name(kind, str(sample.key_expr))
         stream = None if name is None else self._streams.serve(name)
         if stream is None:
             if self._stop.is_set():
                 return
             self.stats.on_received(False)
             self.stats.on_rejected(TOO_MANY_STREAMS)
-            suppressed = self._gate.admit(TOO_MANY_STREAMS)
-            if suppressed is not None:
-                log.warning(
-                    "event=rejected %s",
-                    kv(
-                        reason=TOO_MANY_STREAMS,
-                        key=str(sample.key_expr),
-                        max_streams=self.settings.max_streams,
-                        suppressed=suppressed,
-                    ),
-                )
+            self._log(
+                logging.WARNING,
+                TOO_MANY_STREAMS,
+                "rejected",
+                reason=TOO_MANY_STREAMS,
+                key=str(sample.key_expr),
+                max_streams=self.settings.max_streams,
+            )
             return
-        stream.last_ns = now
-        if not stream.key:
-            stream.key = str(sample.key_expr)
-        stream.stats.on_received(self._scheduler.put(stream.lane, arrival, now))
+        stream.arrive(arrival)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         try:
@@ -385,16 +382,9 @@ class PerceptionService:
                 encoding=zenoh.Encoding.APPLICATION_JSON,
             )
         except zenoh.ZError as err:  # the querier or the session went away
-            self._log_limited(
+            self._log(
                 logging.DEBUG, "status_reply", "status_reply_failed", error=zenoh_error_text(err)
             )
-
-    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
-        """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
-        lines were left out since the last one."""
-        suppressed = self._gate.admit(key)
-        if suppressed is not None:
-            log.log(level, "event=%s %s", event, kv(**fields, suppressed=suppressed))
 
     # -- observability -----------------------------------------------------------------------
 
@@ -405,7 +395,7 @@ class PerceptionService:
             totals,
             self._streams.by_key(),
             retired_vetoes=self._streams.retired_vetoes,
-            named=self.wildcard,
+            named=self.naming.named,
             zid=self._zid,
             worker_alive=not self.failed.is_set(),
             other_services=self._others.count,
@@ -418,14 +408,13 @@ class PerceptionService:
         interval = self.settings.stats_interval_s
         next_report = time.monotonic() + interval if interval > 0 else math.inf
         while not self._stop.wait(min(_REAP_S, max(0.0, next_report - time.monotonic()))):
-            if self.wildcard:
-                self._streams.reap()
+            self._streams.reap()
             if time.monotonic() < next_report:
                 continue
             next_report += interval
             report.log_stats(
                 self.status(),
-                per_stream=self.wildcard,
+                per_stream=self.naming.named,
                 input_key=",".join(self.settings.entries("input_key")),
             )
 

@@ -16,7 +16,7 @@ from zenoh_perception.service.stats import LogGate
 from zenoh_perception.settings import Settings
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 #: Zenoh configuration path of the largest message a session accepts.
 MAX_MESSAGE_SIZE_PATH: Final = "transport/link/rx/max_message_size"
