@@ -49,6 +49,7 @@ class FramePath:
     own_calls: int = 0
     c_calls: int = 0
     functions: set[str] = field(default_factory=set)
+    order: list[str] = field(default_factory=list)
     modules: set[str] = field(default_factory=set)
     wrappers: list[str] = field(default_factory=list)
     done: bool = False
@@ -95,6 +96,7 @@ class Counter:
                 path.own_calls += 1
                 path.modules.add(module)
                 path.functions.add(f"{module}.{frame.f_code.co_qualname}")
+                path.order.append(f"{module}.{frame.f_code.co_qualname}")
         elif event == "c_call":
             path.c_calls += 1
             name = getattr(arg, "__name__", "")
@@ -192,6 +194,7 @@ def main(frames: int) -> dict[str, Any]:
     result["wrapper_classes"] = summaries[0]["wrapper_classes"]
     result["frames"] = len(summaries)
     result["modules_seen"] = sorted(set().union(*(p.modules for p in paths)))
+    result["calls_of_the_last_frame"] = paths[-1].order
     return result
 
 

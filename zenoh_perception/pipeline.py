@@ -70,7 +70,7 @@ def observe(
     x, y = tag_center(detection.corners)
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
-    corners = tuple((cx, cy) for cx, cy in np.asarray(detection.corners, np.float64).tolist())
+    corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
     size = settings.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:

@@ -385,7 +385,9 @@ class _RefusingPublisher:
 def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     rig: Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rig.service._streams.serve("")._outputs, "_tag", _RefusingPublisher())
+    stream = rig.service._streams.serve("")
+    assert stream is not None
+    monkeypatch.setattr(stream._outputs, "_tag", _RefusingPublisher())
     rig.put_raw(SCENE, seq=1)
     record = decode_record(rig.records.get(timeout=20).payload)
     assert record["seq"] == 1 and record["selected"]["tag_id"] == 7

@@ -137,8 +137,7 @@ class GuardedDetector(Detector):
             except FrameAbandonedError:
                 self._calm_at = time.monotonic() + self.calm_s
                 raise
-        detector = self._local
-        return self._in_process(lambda: detector.detect(gray), answered=False)
+        return self._in_process(self._local.detect, gray, answered=False)
 
     def look_again(self) -> list[Detection]:
         """What the in-process detector's second look adds to the frame it read last, where
@@ -149,9 +148,9 @@ class GuardedDetector(Detector):
         return self._in_process(self._local.look_again, answered=True)
 
     def _in_process(
-        self, read_once: Callable[[], list[Detection]], *, answered: bool
+        self, read_once: Callable[..., list[Detection]], *args: object, answered: bool
     ) -> list[Detection]:
-        """``read_once`` in the calling thread, as the read in flight that :meth:`check`
+        """``read_once(*args)`` in the calling thread, as the read in flight that :meth:`check`
         watches (``answered``: it comes after the frame's tag was published)."""
         read = _Read(
             time.monotonic(), threading.get_ident(), threading.get_native_id(), answered=answered
@@ -161,7 +160,7 @@ class GuardedDetector(Detector):
                 raise StaleDetection
             self._read = read
         try:
-            found = read_once()
+            found = read_once(*args)
         finally:
             self._finish(read)
         return found
