@@ -289,36 +289,36 @@ class PerceptionService:
 
     # -- the cameras served -------------------------------------------------------------------
 
-    def hold(self, stream_key: str) -> None:
-        """Subscribe the frames of the concrete key ``stream_key`` (its stream is made when
+    def hold(self, input_key: str) -> None:
+        """Subscribe the frames of the concrete key ``input_key`` (its stream is made when
         its first frame comes). Idempotent; thread-safe; meant for ``subscribe_inputs=False``.
 
-        ``stream_key`` is a key ``input_key`` matches (raw frames or sensor_msgs/Image CDR;
+        ``input_key`` is a key ``input_key`` matches (raw frames or sensor_msgs/Image CDR;
         with ``ros_transport = "rmw_zenoh"`` the topic's rmw_zenoh key) or one
         ``compressed_input_key`` matches (CompressedImage CDR).
 
         Raises:
-            SettingsError: ``stream_key`` is not a concrete key either input matches.
+            SettingsError: ``input_key`` is not a concrete key either input matches.
             SessionError: Zenoh refused the subscription.
 
         """
-        kind = self._kind_of(stream_key)
+        kind = self._kind_of(input_key)
         with self._held_lock:
-            if stream_key in self._held or self._stop.is_set():
+            if input_key in self._held or self._stop.is_set():
                 return
             try:
-                self._held[stream_key] = self._session.declare_subscriber(
-                    stream_key, self._receiver(kind)
+                self._held[input_key] = self._session.declare_subscriber(
+                    input_key, self._receiver(kind)
                 )
             except zenoh.ZError as err:
-                msg = f"cannot subscribe {stream_key!r}: {zenoh_error_text(err)}"
+                msg = f"cannot subscribe {input_key!r}: {zenoh_error_text(err)}"
                 raise SessionError(msg) from err
 
-    def release(self, stream_key: str) -> None:
-        """Unsubscribe ``stream_key`` and forget its stream (its detector state, counters and
+    def release(self, input_key: str) -> None:
+        """Unsubscribe ``input_key`` and forget its stream (its detector state, counters and
         publishers; a frame being answered is answered first). Idempotent; thread-safe."""
         with self._held_lock:
-            subscriber = self._held.pop(stream_key, None)
+            subscriber = self._held.pop(input_key, None)
             if subscriber is None:
                 return
             others = [self._name_of(k) for k in self._held]
@@ -326,7 +326,7 @@ class PerceptionService:
             subscriber.undeclare()
         except zenoh.ZError as err:  # session closed
             log.debug("event=undeclare_failed %s", kv(error=err))
-        name = self._name_of(stream_key)
+        name = self._name_of(input_key)
         if name is not None and name not in others:
             self._streams.retire(name)
 

@@ -28,7 +28,7 @@ from zenoh_perception.tags.pose import Intrinsics
 from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
 from zenoh_perception.wire.frames import Frame, to_bgr
 from zenoh_perception.wire.records import FrameRecord
-from zenoh_perception.wire.stream_keys import stream_key
+from zenoh_perception.wire.stream_keys import output_key
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +144,7 @@ class StreamOutputs:
         pool, s, name = self._pool, self._settings, self._stream
         self._tag = pool.ros("tag", name, express=True)
         self._declared.append(self._tag)
-        self._record = pool.record(stream_key(s.record_key, name))
+        self._record = pool.record(output_key(s.record_key, name))
         self._declared.append(self._record)
         self._declared += self._ros.declare(_StreamPublishers(pool, name))
         if s.debug_image:
