@@ -226,7 +226,7 @@ def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> Non
         frame = Frame(
             lookalike_frame(kind, "DICT_4X4_50", rng), ENCODINGS["bgra8"], None, "test", None
         )
-        found, _ = whole._finder.find(frame)  # every detection screened, then selected
+        found, _ = whole.find(frame)  # every detection screened, then selected
         expected = selected_message(
             tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
         )

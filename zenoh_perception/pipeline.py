@@ -206,8 +206,9 @@ def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
     )
 
 
-class Pipeline:
-    """Turns decoded frames into an :class:`Analysis`.
+class Pipeline(TagFinder):
+    """Turns decoded frames into an :class:`Analysis`: the settings' :class:`TagFinder`, then
+    each tag's geometry and the selection.
 
     ``intrinsics`` starts from the settings and may be replaced at run time (CameraInfo,
     :meth:`use_camera_info`): a CameraInfo's intrinsics are applied only to frames of its
@@ -221,9 +222,7 @@ class Pipeline:
         if detector is None:
             detector = detector_for(settings)
         verifier = Verifier(settings.dictionary) if settings.verify else None
-        self._finder = TagFinder(
-            detector, settings.min_tag_side_px, verifier, settings.confirm_frames
-        )
+        super().__init__(detector, settings.min_tag_side_px, verifier, settings.confirm_frames)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
             intrinsics_from_settings(settings),
@@ -244,11 +243,6 @@ class Pipeline:
         """Intrinsics for frames of ``width`` x ``height`` only (a CameraInfo's)."""
         self._camera = (intrinsics, (width, height))
 
-    @property
-    def vetoed(self) -> Counter[str]:
-        """Detections vetoed so far, by reason (:data:`VETO_REASONS`)."""
-        return self._finder.vetoed
-
     def process(self, frame: Frame) -> Analysis:
         return self.begin(frame).finish()
 
@@ -258,8 +252,7 @@ class Pipeline:
         :meth:`Pending.finish` judges the others. The selection is the one :meth:`process`
         makes."""
         start = time.perf_counter()
-        finder = self._finder
-        gray, detections, convert_s = finder.detect(frame)
+        gray, detections, convert_s = self.detect(frame)
         width, height = frame.width, frame.height
         intrinsics, size = self._camera
         mismatch = intrinsics is not None and size is not None and size != (width, height)
@@ -269,10 +262,10 @@ class Pipeline:
         def observed(detection: Detection) -> TagObservation:
             return observe(detection, width, height, self.settings, intrinsics)
 
-        if not (detections and finder.judges_one_by_one):
+        if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second
             # look left until after the tag is not taken, since the tag would wait for it
-            detections = finder.screen(gray, detections)
+            detections = self.screen(gray, detections)
             tags = tuple(observed(d) for d in detections)
             detect_s = time.perf_counter() - start - convert_s
             analysis = Analysis(
@@ -283,13 +276,13 @@ class Pipeline:
                 intrinsics_mismatch=mismatch,
             )
             return Pending(analysis.selected, mismatch, lambda: analysis)
-        finder.start(gray)
+        self.start(gray)
         observations = [observed(d) for d in detections]
         rank = selection_key(width, height, self._policy)
         verdicts: dict[int, str | None] = {}
         selected = NO_TAG
         for index in sorted(range(len(detections)), key=lambda i: rank(observations[i])):
-            verdicts[index] = finder.judge(gray, detections[index])
+            verdicts[index] = self.judge(gray, detections[index])
             if verdicts[index] is None:
                 selected = observations[index].message()
                 break
@@ -298,14 +291,14 @@ class Pipeline:
         def finish() -> Analysis:
             started = time.perf_counter()
             # the second look left until after the tag: smaller markers than the one selected
-            added = finder.look_again()
+            added = self.look_again()
             detections.extend(added)
             observations.extend(observed(d) for d in added)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
-                    verdicts[index] = finder.judge(gray, detection)
+                    verdicts[index] = self.judge(gray, detection)
             kept = [i for i in range(len(detections)) if verdicts[i] is None]
-            finder.commit(
+            self.commit(
                 [detections[i] for i in kept],
                 [reason for reason in verdicts.values() if reason is not None],
             )
