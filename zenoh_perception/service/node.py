@@ -1,30 +1,58 @@
-"""The perception service: the thin layer that wires streams, transports and the pure
-pipeline to Zenoh.
+"""The perception service: subscribes camera frames on Zenoh and publishes, per frame, the
+closest ArUco tag and a record of every detection.
 
-Each camera is a stream (:mod:`~zenoh_perception.service.stream`): a concrete ``input_key``
-is one, declared at start; a wildcard one (``cams/*/image``), or a list of keys (each
-subscribed apart), is a stream per concrete key it matches, made when its first frame comes
-(at most ``max_streams``; further keys' frames are refused and counted) and forgotten after
-``stream_idle_s`` without a frame
-(:mod:`~zenoh_perception.service.registry`). By default the service subscribes its input keys
-itself; built with ``subscribe_inputs=False`` it subscribes only the concrete keys it is told
-to :meth:`PerceptionService.hold` (instances sharing cameras each hold theirs, or a share
-group, :mod:`~zenoh_perception.service.group`, tells it which).
+Subscribed (each key a setting; wildcards or a list of keys give a stream per camera):
+
+- ``input_key`` (``zed/left/image``): raw frames (pixels + msgpack attachment) or
+  sensor_msgs/Image CDR; ``compressed_input_key`` (``zed/left/image/compressed``):
+  sensor_msgs/CompressedImage CDR;
+- ``camera_info_key`` (off): sensor_msgs/CameraInfo CDR, the intrinsics of the poses.
+
+Published, on every frame (``{stream}`` in a key: the stream's name):
+
+- ``tag_key`` (``tag``): StarterProjectTag CDR (tag_id, x_tag_center_pixel,
+  y_tag_center_pixel, closeness_metric), id -1 when no tag; first, before the rest;
+- ``record_key`` (``perception/tags``): msgpack record of every detection, timings, source;
+- ``detections_key`` (``perception/detections``): apriltag_msgs/AprilTagDetectionArray CDR,
+  and ``tf_key`` (``tf``): tf2_msgs/TFMessage CDR, each only while someone subscribes;
+- ``debug_image_key``: the annotated frame as sensor_msgs/CompressedImage CDR, with
+  ``debug_image`` on and while someone subscribes.
+
+Served: ``status_key`` (``perception/status``), a JSON status queryable; the liveliness
+token ``<liveliness_key>/<zid>`` (``perception/alive``). With ``ros_transport = "rmw_zenoh"``
+the topics are an rmw_zenoh node's (``ros_namespace``, ``ros_node_name``, ``ros_domain_id``).
+
+Settings (config/perception.toml documents each; every one has a flag): detection
+(``detector``, ``dictionary``, ``second_look``, ``verify``, ``confirm_frames``,
+``min_tag_side_px``, ``policy``, ``metric``, ``tag_size_m``, the camera intrinsics); limits
+(``max_frame_bytes``, ``max_frame_pixels``, ``frame_deadline_ms``, ``detector_process``,
+``max_streams``, ``stream_idle_s``, ``workers``); logging (``log_interval_s``,
+``stats_interval_s``, ``no_tag_hint_s``); sharing cameras (``share_group``).
+
+Each camera is a stream (:mod:`~zenoh_perception.service.stream`, whose ``Stream.answer``
+is a frame's whole path): a concrete ``input_key`` is one, declared at start; a wildcard one
+(``cams/*/image``), or a list of keys (each subscribed apart), is a stream per concrete key it
+matches, made when its first frame comes (at most ``max_streams``; further keys' frames are
+refused and counted) and forgotten after ``stream_idle_s`` without a frame
+(:mod:`~zenoh_perception.service.registry`; :class:`~zenoh_perception.service.inputs.
+StreamNaming` decides). By default the service subscribes its input keys itself; built with
+``subscribe_inputs=False`` it subscribes only the concrete keys it is told to
+:meth:`PerceptionService.hold` (instances sharing cameras each hold theirs, or a share group,
+:mod:`~zenoh_perception.service.group`, tells it which).
 
 Threads:
 
 - Zenoh's callback threads only stamp the arrival time and leave the sample in its stream's
   newest-frame lane (O(1), no copy, no decoding).
 - ``workers`` worker threads (default one per core; OpenCV releases the GIL) each take the
-  stream whose newest frame has waited longest and answer that frame; with
-  ``frame_deadline_ms`` a watchdog thread abandons a detection past the deadline
-  (:mod:`~zenoh_perception.service.workers`).
+  stream whose newest frame has waited longest and answer that frame
+  (:mod:`~zenoh_perception.service.workers`); with ``frame_deadline_ms`` a watchdog thread
+  abandons a detection past the deadline (:mod:`~zenoh_perception.service.watchdog`).
 - One reporter thread writes the periodic stats line (and one per stream with a wildcard
   input; :mod:`~zenoh_perception.service.report`), and forgets idle streams.
 
 Every repeating log line goes through one rate limit (``log_interval_s``) per event and
-reason. Opening the session, and its limits, are :mod:`~zenoh_perception.service.session`'s;
-which input a key is, and the stream it names, :mod:`~zenoh_perception.service.inputs`'.
+reason. Opening the session, and its limits, are :mod:`~zenoh_perception.service.session`'s.
 """
 
 from __future__ import annotations
