@@ -8,7 +8,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Final
 
-import cv2
 import numpy as np
 
 from zenoh_perception.detect.confirm import Confirmer
@@ -192,11 +191,9 @@ class TagFinder:
 
 def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
     """The detector the settings name: what :class:`Pipeline` runs unless given another (the
-    service's deadline runs it in a child process, built there by this function). Sets the
-    process's OpenCV threads as ``opencv_threads`` says. ``wary``: for a detector that
-    replaces one whose read stalled (see :func:`~.detect.factory.make_detector`)."""
-    if settings.opencv_threads > 0:
-        cv2.setNumThreads(settings.opencv_threads)
+    service's deadline runs it in a child process, built there by this function). ``wary``:
+    for a detector that replaces one whose read stalled (see
+    :func:`~.detect.factory.make_detector`)."""
     return make_detector(
         settings.detector,
         settings.dictionary,
@@ -217,8 +214,6 @@ class Pipeline(TagFinder):
 
     def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
         self.settings = settings
-        if settings.opencv_threads > 0:
-            cv2.setNumThreads(settings.opencv_threads)
         if detector is None:
             detector = detector_for(settings)
         verifier = Verifier(settings.dictionary) if settings.verify else None

@@ -37,6 +37,13 @@ def aruco_dictionary(name: str) -> Any:
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.05)
 
 
+def set_opencv_threads(threads: int) -> None:
+    """The process's OpenCV threads (``opencv_threads``; 0: OpenCV's choice): set once, when a
+    process that detects starts (the service, a child process of the frame deadline)."""
+    if threads > 0:
+        cv2.setNumThreads(threads)
+
+
 @contextmanager
 def single_threaded() -> Iterator[None]:
     """OpenCV on one thread meanwhile. For small images (regions, thumbnails) waking OpenCV's

@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from zenoh_perception.detect.opencv import set_opencv_threads
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError, ProcessingError
 
@@ -51,9 +52,11 @@ _DETECT_ERRORS: Final = (cv2.error, ValueError)
 DetectorFactory = Callable[[], Detector]
 
 
-def _serve(conn: Connection, factory: DetectorFactory) -> None:
-    """The child: build the detector, say ready, then read one frame per request."""
+def _serve(conn: Connection, factory: DetectorFactory, opencv_threads: int) -> None:
+    """The child: its OpenCV threads set, build the detector, say ready, then read one frame
+    per request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when a child ends
+    set_opencv_threads(opencv_threads)
     detector = factory()
     segment: shared_memory.SharedMemory | None = None
     conn.send(None)
@@ -80,10 +83,18 @@ def _serve(conn: Connection, factory: DetectorFactory) -> None:
 class _Child:
     """One child process and the parent's end of its pipe."""
 
-    def __init__(self, context: multiprocessing.context.BaseContext, factory: DetectorFactory):
+    def __init__(
+        self,
+        context: multiprocessing.context.BaseContext,
+        factory: DetectorFactory,
+        opencv_threads: int,
+    ):
         self.conn, child_conn = context.Pipe()
         self.process: BaseProcess = context.Process(  # type: ignore[attr-defined]
-            target=_serve, args=(child_conn, factory), name="perception-detector", daemon=True
+            target=_serve,
+            args=(child_conn, factory, opencv_threads),
+            name="perception-detector",
+            daemon=True,
         )
         self.process.start()
         child_conn.close()
@@ -116,8 +127,10 @@ class IsolatedDetector(Detector):
         *,
         stop: threading.Event | None = None,
         after_stall: DetectorFactory | None = None,
+        opencv_threads: int = 0,
     ) -> None:
         self.deadline_s = deadline_s
+        self._opencv_threads = opencv_threads
         self._factory = factory
         self._after_stall = after_stall if after_stall is not None else factory
         self._stop = stop if stop is not None else threading.Event()
@@ -134,9 +147,9 @@ class IsolatedDetector(Detector):
     def start(self) -> None:
         """Start the child and its spare (the first start also starts the fork server)."""
         if self._active is None:
-            self._active = _Child(self._context, self._factory)
+            self._active = _Child(self._context, self._factory, self._opencv_threads)
         if self._spare is None:
-            self._spare = _Child(self._context, self._after_stall)
+            self._spare = _Child(self._context, self._after_stall, self._opencv_threads)
 
     def close(self) -> None:
         """Kill the children and free the shared memory."""

@@ -85,13 +85,16 @@ class GuardedDetector(Detector):
         stop: threading.Event | None = None,
         calm_s: float = CALM_S,
         after_stall: DetectorFactory | None = None,
+        opencv_threads: int = 0,
     ) -> None:
         self.deadline_s = deadline_s
         self.calm_s = calm_s
         self._factory = after_stall if after_stall is not None else factory
         self._local: Detector = factory()
         # the child serves frames only after a stall
-        self.isolated = IsolatedDetector(self._factory, deadline_s, stop=stop)
+        self.isolated = IsolatedDetector(
+            self._factory, deadline_s, stop=stop, opencv_threads=opencv_threads
+        )
         self._lock = threading.Lock()
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector

@@ -68,6 +68,7 @@ from typing import Any, Final
 
 import zenoh
 
+from zenoh_perception.detect.opencv import set_opencv_threads
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import ProcessingError, SessionError, zenoh_error_text
 from zenoh_perception.service import report
@@ -198,6 +199,8 @@ class PerceptionService:
         if self._started:
             return
         self._started = True
+        # process-wide: set once, before any stream reads a frame
+        set_opencv_threads(self.settings.opencv_threads)
         try:
             self._declare()
         except zenoh.ZError as err:

@@ -175,13 +175,22 @@ class Stream:
                 factory, deadline_s = partial(detector_for, s), s.frame_deadline_ms / 1e3
                 # the detectors that take over from a stalled read keep grids away at once
                 wary = partial(detector_for, s, wary=True)
+                threads = s.opencv_threads  # the child processes' own, set when each starts
                 if s.detector_process == "always":
                     self._isolated = IsolatedDetector(
-                        factory, deadline_s, stop=shared.stop, after_stall=wary
+                        factory,
+                        deadline_s,
+                        stop=shared.stop,
+                        after_stall=wary,
+                        opencv_threads=threads,
                     )
                 else:
                     self._isolated = self.guard = GuardedDetector(
-                        factory, deadline_s, stop=shared.stop, after_stall=wary
+                        factory,
+                        deadline_s,
+                        stop=shared.stop,
+                        after_stall=wary,
+                        opencv_threads=threads,
                     )
                 detector = self._isolated
             self._pipeline = Pipeline(s, detector)
