@@ -9,7 +9,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.settings import Settings
@@ -136,7 +136,7 @@ def test_the_intrinsics_may_change_at_run_time() -> None:
     assert all(tag.distance_m is not None for tag in pipeline.process(_frame(TWO_TAGS)).tags)
 
 
-class _Fixed:
+class _Fixed(Detector):
     """A detector that reports the same detections whatever the frame."""
 
     def __init__(self, *detections: Detection) -> None:
@@ -227,7 +227,7 @@ def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> Non
         frame = Frame(
             lookalike_frame(kind, "DICT_4X4_50", rng), ENCODINGS["bgra8"], None, "test", None
         )
-        found, _ = whole._finder.find(frame)  # every detection screened, then selected
+        found, _ = whole.find(frame)  # every detection screened, then selected
         expected = selected_message(
             tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
         )

@@ -45,7 +45,7 @@ from zenoh_perception_bench.processes import frames_of, is_idle
 # -- the load check ------------------------------------------------------------------------------
 
 
-class HoldableDetector:
+class HoldableDetector(Detector):
     """Wraps a detector; after :meth:`hold` the next ``detect`` waits until :meth:`release`.
 
     The load check holds the service's worker inside one frame while the flood's tail and the

@@ -38,7 +38,7 @@ import zenoh
 from tools.rig import percentile
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import aruco_dictionary
-from zenoh_perception.service.watchdog import IsolatedDetector
+from zenoh_perception.service.child_detector import IsolatedDetector
 from zenoh_perception.wire.frames import RawFrameMeta
 from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
 from zenoh_perception_bench.processes import (

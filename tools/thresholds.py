@@ -48,12 +48,14 @@ from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.regions import seen_again
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import (
-    TYPICAL_QUIET,
     Measures,
     Thresholds,
     Verifier,
+    dark_ring,
     measure,
     quiet_waived,
+    strokes_read,
+    typical_quiet,
     veto_reasons,
 )
 from zenoh_perception.pipeline import TagFinder
@@ -93,18 +95,6 @@ class Rule:
     value: Callable[[Measures, Thresholds], float | None]
 
 
-def _typical(m: Measures) -> bool:
-    return TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
-
-
-def _dark_ring(m: Measures, t: Thresholds) -> bool:
-    return m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min
-
-
-def _strokes_read(m: Measures, t: Thresholds) -> bool:
-    return m.shortest_side_px >= t.strokes_min_px_per_cell * m.cells_across
-
-
 #: Every threshold of verify.py's rules, in the order the rules are checked.
 RULES: Final = (
     Rule(
@@ -142,7 +132,7 @@ RULES: Final = (
         "lower",
         lambda m, t: (
             m.px_per_cell
-            if _dark_ring(m, t) and m.margin is not None and m.margin >= t.quiet_waiver_bits
+            if dark_ring(m, t) and m.margin is not None and m.margin >= t.quiet_waiver_bits
             else None
         ),
     ),
@@ -153,7 +143,7 @@ RULES: Final = (
         "quiet below",
         "lower",
         lambda m, t: (
-            m.margin if _dark_ring(m, t) and m.px_per_cell >= t.quiet_waiver_px_per_cell else None
+            m.margin if dark_ring(m, t) and m.px_per_cell >= t.quiet_waiver_px_per_cell else None
         ),
     ),
     Rule(
@@ -171,7 +161,7 @@ RULES: Final = (
         "strokes",
         "strokes",
         "upper",
-        lambda m, t: m.strokes if _strokes_read(m, t) else None,
+        lambda m, t: m.strokes if strokes_read(m, t) else None,
     ),
     Rule(
         "strokes_min_px_per_cell",
@@ -187,7 +177,7 @@ RULES: Final = (
         "margin",
         "margin",
         "lower",
-        lambda m, t: None if m.margin is None or _typical(m) else m.margin,
+        lambda m, t: None if m.margin is None or typical_quiet(m) else m.margin,
     ),
 )
 
@@ -205,7 +195,7 @@ def vetoes(rule: Rule, measures: Measures, thresholds: Thresholds) -> bool:
         return False
     limit = float(getattr(thresholds, rule.field))
     if rule.field == "strokes_min_px_per_cell":
-        return _strokes_read(measures, thresholds)  # at or above the gate: the same product
+        return strokes_read(measures, thresholds)  # at or above the gate: the same product
     return value > limit if rule.bound == "upper" else value < limit
 
 

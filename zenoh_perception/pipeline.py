@@ -8,7 +8,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Final
 
-import cv2
 import numpy as np
 
 from zenoh_perception.detect.confirm import Confirmer
@@ -71,7 +70,7 @@ def observe(
     x, y = tag_center(detection.corners)
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
-    corners = tuple((cx, cy) for cx, cy in np.asarray(detection.corners, np.float64).tolist())
+    corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
     size = settings.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:
@@ -150,8 +149,7 @@ class TagFinder:
         start = time.perf_counter()
         # a detector in another process offers the buffer it reads from (None: any array), so
         # that the grey image is not copied into it
-        buffer = getattr(self.detector, "gray_buffer", None)
-        gray = to_gray(frame, None if buffer is None else buffer(*frame.pixels.shape[:2]))
+        gray = to_gray(frame, self.detector.gray_buffer(*frame.pixels.shape[:2]))
         converted = time.perf_counter()
         detections = self.detector.detect(gray)
         if self._min_side_px > 0.0 and detections:
@@ -163,10 +161,7 @@ class TagFinder:
         where that look was left until after the frame's tag (see
         :mod:`~zenoh_perception.detect.second_look`); those at least ``min_side_px`` a side.
         Once per frame, after :meth:`detect`."""
-        later = getattr(self.detector, "look_again", None)
-        if later is None:
-            return []
-        added: list[Detection] = later()
+        added = self.detector.look_again()
         if self._min_side_px > 0.0 and added:
             added = [d for d in added if mean_side(d.corners) >= self._min_side_px]
         return added
@@ -207,11 +202,9 @@ class TagFinder:
 
 def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
     """The detector the settings name: what :class:`Pipeline` runs unless given another (the
-    service's deadline runs it in a child process, built there by this function). Sets the
-    process's OpenCV threads as ``opencv_threads`` says. ``wary``: for a detector that
-    replaces one whose read stalled (see :func:`~.detect.factory.make_detector`)."""
-    if settings.opencv_threads > 0:
-        cv2.setNumThreads(settings.opencv_threads)
+    service's deadline runs it in a child process, built there by this function). ``wary``:
+    for a detector that replaces one whose read stalled (see
+    :func:`~.detect.factory.make_detector`)."""
     return make_detector(
         settings.detector,
         settings.dictionary,
@@ -221,8 +214,9 @@ def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
     )
 
 
-class Pipeline:
-    """Turns decoded frames into an :class:`Analysis`.
+class Pipeline(TagFinder):
+    """Turns decoded frames into an :class:`Analysis`: the settings' :class:`TagFinder`, then
+    each tag's geometry and the selection.
 
     ``intrinsics`` starts from the settings and may be replaced at run time (CameraInfo,
     :meth:`use_camera_info`): a CameraInfo's intrinsics are applied only to frames of its
@@ -231,14 +225,10 @@ class Pipeline:
 
     def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
         self.settings = settings
-        if settings.opencv_threads > 0:
-            cv2.setNumThreads(settings.opencv_threads)
         if detector is None:
             detector = detector_for(settings)
         verifier = Verifier(settings.dictionary) if settings.verify else None
-        self._finder = TagFinder(
-            detector, settings.min_tag_side_px, verifier, settings.confirm_frames
-        )
+        super().__init__(detector, settings.min_tag_side_px, verifier, settings.confirm_frames)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
             intrinsics_from_settings(settings),
@@ -259,11 +249,6 @@ class Pipeline:
         """Intrinsics for frames of ``width`` x ``height`` only (a CameraInfo's)."""
         self._camera = (intrinsics, (width, height))
 
-    @property
-    def vetoed(self) -> Counter[str]:
-        """Detections vetoed so far, by reason (:data:`VETO_REASONS`)."""
-        return self._finder.vetoed
-
     def process(self, frame: Frame) -> Analysis:
         return self.begin(frame).finish()
 
@@ -273,8 +258,7 @@ class Pipeline:
         :meth:`Pending.finish` judges the others. The selection is the one :meth:`process`
         makes."""
         start = time.perf_counter()
-        finder = self._finder
-        gray, detections, convert_s = finder.detect(frame)
+        gray, detections, convert_s = self.detect(frame)
         width, height = frame.width, frame.height
         intrinsics, size = self._camera
         mismatch = intrinsics is not None and size is not None and size != (width, height)
@@ -288,10 +272,10 @@ class Pipeline:
                 detection = refined(gray, detection)
             return observe(detection, width, height, self.settings, intrinsics)
 
-        if not (detections and finder.judges_one_by_one):
+        if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second
             # look left until after the tag is not taken, since the tag would wait for it
-            detections = finder.screen(gray, detections)
+            detections = self.screen(gray, detections)
             tags = tuple(observed(d) for d in detections)
             detect_s = time.perf_counter() - start - convert_s
             analysis = Analysis(
@@ -302,13 +286,13 @@ class Pipeline:
                 intrinsics_mismatch=mismatch,
             )
             return Pending(analysis.selected, mismatch, lambda: analysis)
-        finder.start(gray)
+        self.start(gray)
         observations = [observed(d) for d in detections]
         rank = selection_key(width, height, self._policy)
         verdicts: dict[int, str | None] = {}
         selected = NO_TAG
         for index in sorted(range(len(detections)), key=lambda i: rank(observations[i])):
-            verdicts[index] = finder.judge(gray, detections[index])
+            verdicts[index] = self.judge(gray, detections[index])
             if verdicts[index] is None:
                 selected = observations[index].message()
                 break
@@ -317,14 +301,14 @@ class Pipeline:
         def finish() -> Analysis:
             started = time.perf_counter()
             # the second look left until after the tag: smaller markers than the one selected
-            added = finder.look_again()
+            added = self.look_again()
             detections.extend(added)
             observations.extend(observed(d) for d in added)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
-                    verdicts[index] = finder.judge(gray, detection)
+                    verdicts[index] = self.judge(gray, detection)
             kept = [i for i in range(len(detections)) if verdicts[i] is None]
-            finder.commit(
+            self.commit(
                 [detections[i] for i in kept],
                 [reason for reason in verdicts.values() if reason is not None],
             )

@@ -70,7 +70,7 @@ from zenoh_perception.wire.stream_keys import (
     colliding_keys,
     has_wildcard,
     key_entries,
-    stream_key,
+    output_key,
 )
 
 METRICS = tuple(Metric)
@@ -477,7 +477,7 @@ def _stream_template(name: str, value: str) -> str:
     if name not in _STREAM_KEYS:
         msg = f"{name} = {value!r}: only {', '.join(_STREAM_KEYS)} may hold {STREAM!r}"
         raise SettingsError(msg)
-    return stream_key(value, "stream")
+    return output_key(value, "stream")
 
 
 def _any_stream(value: str) -> str:
@@ -680,7 +680,7 @@ def _validate_ros(settings: Settings) -> None:
         for value in key_entries(setting):
             # a camera topic may be a pattern ('*/image'), an output its stream's
             # ('{stream}/tag')
-            name = stream_key(value, "stream")
+            name = output_key(value, "stream")
             if topic.direction is Direction.SUBSCRIBE:
                 name = "/".join("x" if c in ("*", "**") else c for c in name.split("/"))
             if not is_relative_topic(name):

@@ -88,7 +88,7 @@ def test_the_service_s_tag_does_not_wait_for_a_look_that_cannot_change_it() -> N
     pipeline = Pipeline(Settings())
     pending = pipeline.begin(_bgra(_frame(SMALL, (3, 60, 40, 40))))
     assert pending.selected.tag_id == 3
-    detector = pipeline._finder.detector
+    detector = pipeline.detector
     assert isinstance(detector, OpenCvDetector)
     assert isinstance(detector.second_look, SecondLook)
     assert detector.second_look.counters["looks"] == 0  # not taken before the tag

@@ -52,7 +52,7 @@ from tests.helpers import (
 )
 from tools.rig import MarkerFrame, marker_frame, raw_attachment
 from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception.service import session as service_module
 from zenoh_perception.service.node import PerceptionService
@@ -217,7 +217,7 @@ def test_camera_leaving_and_coming_back_is_answered_again(router: Router) -> Non
         assert frames["received"] == frames["processed"] + frames["dropped"] + frames["rejected"]
 
 
-class _FailingOn:
+class _FailingOn(Detector):
     """The real detector, except that it raises cv2.error (as OpenCV does) on one frame width."""
 
     def __init__(self, width: int) -> None:
@@ -335,7 +335,7 @@ def test_connection_retries_are_logged_at_most_once_per_interval(
     endpoint: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     """Every retry of a client whose router is down is one log line without the rate limit."""
-    caplog.set_level(logging.WARNING, logger="zenoh_perception.service.node")
+    caplog.set_level(logging.WARNING, logger="zenoh_perception")
     attempts: list[int] = []
 
     def refuse(_conf: zenoh.Config) -> zenoh.Session:

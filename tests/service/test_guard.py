@@ -29,7 +29,7 @@ RELEASE = threading.Event()
 BUILT: list[_Stalling] = []
 
 
-class _Stalling:
+class _Stalling(Detector):
     """OpenCV's detector, except on an image whose first pixel is _STALL."""
 
     def __init__(self) -> None:

@@ -350,7 +350,7 @@ def test_implausible_camera_info_is_counted_and_ignored(endpoint: str) -> None:
 def test_camera_info_changes_are_logged_at_most_once_per_interval(
     endpoint: str, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, logger="zenoh_perception.service.node")
+    caplog.set_level(logging.INFO, logger="zenoh_perception")
     settings = Settings(
         camera_info_key="zed/left/camera_info",
         tag_size_m=0.2,
@@ -385,7 +385,9 @@ class _RefusingPublisher:
 def test_a_failed_publication_is_counted_and_the_worker_goes_on(
     rig: Rig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(rig.service._streams.serve(""), "_tag_pub", _RefusingPublisher())
+    stream = rig.service._streams.serve("")
+    assert stream is not None
+    monkeypatch.setattr(stream._outputs, "_tag", _RefusingPublisher())
     rig.put_raw(SCENE, seq=1)
     record = decode_record(rig.records.get(timeout=20).payload)
     assert record["seq"] == 1 and record["selected"]["tag_id"] == 7

@@ -93,8 +93,8 @@ def rig(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[_Rig]:
 
     # The service calls these through its module globals: patch them there (a test may patch
     # annotate again to make it fail).
-    monkeypatch.setattr("zenoh_perception.service.stream.annotate", annotate)
-    monkeypatch.setattr("zenoh_perception.service.stream.encode_compressed_image", encode)
+    monkeypatch.setattr("zenoh_perception.service.outputs.annotate", annotate)
+    monkeypatch.setattr("zenoh_perception.service.outputs.encode_compressed_image", encode)
     # No rate cap in the way: every watched frame yields a debug image.
     settings = Settings(stats_interval_s=0.0, debug_image_max_hz=1000.0)
     with (
@@ -189,7 +189,7 @@ def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.Mon
         encoded.append(1)
         return real_encode(*args, **kwargs)
 
-    monkeypatch.setattr("zenoh_perception.service.stream.encode_compressed_image", encode)
+    monkeypatch.setattr("zenoh_perception.service.outputs.encode_compressed_image", encode)
     settings = Settings(stats_interval_s=0.0, debug_image=False)
     with (
         open_session(listen=[endpoint]) as service_side,
@@ -242,7 +242,7 @@ def test_a_failing_debug_image_is_a_counted_processing_error_not_a_dead_worker(
             raise cv2.error(msg)
         return real_annotate(*args, **kwargs)
 
-    monkeypatch.setattr("zenoh_perception.service.stream.annotate", annotate_failing_once)
+    monkeypatch.setattr("zenoh_perception.service.outputs.annotate", annotate_failing_once)
     viewer = Collector(rig.camera, DEBUG_KEY)
     _wait_watched(rig.camera, watched=True)
     rig.send_and_wait()  # its tag and record are out before the debug image fails

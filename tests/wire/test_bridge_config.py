@@ -29,7 +29,7 @@ from zenoh_perception.wire.bridge_config import (
     stream_name_patterns,
 )
 from zenoh_perception.wire.ros_topics import ROS_TOPICS, Direction
-from zenoh_perception.wire.stream_keys import StreamNames, key_entries, stream_key
+from zenoh_perception.wire.stream_keys import StreamNames, key_entries, output_key
 
 OUTPUTS = ("tag_key", "debug_image_key", "detections_key", "tf_key")
 
@@ -174,7 +174,7 @@ def _service_outputs(settings: Settings, camera: str) -> list[str]:
         stream = StreamNames(keys).name(camera) if key_entries(keys) else None
         if stream is not None:
             values = (getattr(settings, o) for o in OUTPUTS)
-            return [stream_key(v, stream) for v in values if v]
+            return [output_key(v, stream) for v in values if v]
     raise AssertionError(f"{camera} is no camera of these settings")
 
 
@@ -223,7 +223,7 @@ def _used_keys(settings: Settings, direction: Direction) -> list[zenoh.KeyExpr]:
             continue
         for entry in key_entries(getattr(settings, topic.key_setting)):
             for name in names if "{stream}" in entry else [""]:
-                exprs.append(zenoh.KeyExpr(stream_key(entry, name)))
+                exprs.append(zenoh.KeyExpr(output_key(entry, name)))
     return exprs
 
 

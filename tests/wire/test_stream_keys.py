@@ -13,7 +13,7 @@ from zenoh_perception.wire.stream_keys import (
     colliding_keys,
     has_wildcard,
     key_entries,
-    stream_key,
+    output_key,
     stream_name,
 )
 
@@ -55,7 +55,7 @@ def test_the_stream_is_named_by_what_the_wildcards_matched(
 def test_an_output_key_is_the_streams_once_its_name_is_in_place(
     template: str, name: str, key: str
 ) -> None:
-    assert stream_key(template, name) == key
+    assert output_key(template, name) == key
 
 
 def test_wildcards_are_told() -> None:
@@ -76,9 +76,9 @@ def test_a_name_put_in_the_input_comes_back_and_names_the_output(
     name = names[0] if star else "/".join(names)
     key = f"cams/{name}/image" if star else f"rover/{name}/image"
     assert stream_name(pattern, key) == name
-    output = stream_key("out/{stream}/tag", name)
+    output = output_key("out/{stream}/tag", name)
     assert zenoh.KeyExpr(output) == zenoh.KeyExpr(f"out/{name}/tag")
-    other = stream_key("out/{stream}/tag", name + "x")
+    other = output_key("out/{stream}/tag", name + "x")
     assert other != output
 
 

@@ -38,7 +38,7 @@ import zenoh
 import zenoh.shm as zshm
 
 from zenoh_perception.errors import PerceptionError
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.sharing import camera_token_key
 
@@ -108,7 +108,7 @@ class ShmPutter:
         #: Frames loaded into shared memory / passed on as plain bytes.
         self.shm_frames = 0
         self.plain_frames = 0
-        self._gate = LogGate(5.0)
+        self._log = LimitedLog(log, LogGate(5.0))
 
     @property
     def active(self) -> bool:
@@ -166,12 +166,14 @@ class ShmPutter:
         try:
             return self._provider.alloc(size, _policy())
         except zenoh.ZError as err:
-            suppressed = self._gate.admit("exhausted")
-            if suppressed is not None:
-                log.warning(
-                    "event=shm_exhausted %s",
-                    kv(slots=self.slots, size=size, suppressed=suppressed, error=err),
-                )
+            self._log(
+                logging.WARNING,
+                "exhausted",
+                "shm_exhausted",
+                slots=self.slots,
+                size=size,
+                error=err,
+            )
             return None
 
     def _new_provider(self, size: int) -> zshm.ShmProvider | None:

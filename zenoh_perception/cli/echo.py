@@ -35,7 +35,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     topic_key,
 )
 from zenoh_perception.wire.ros_topics import ros_topic
-from zenoh_perception.wire.stream_keys import STREAM, stream_key
+from zenoh_perception.wire.stream_keys import STREAM, output_key
 from zenoh_perception.wire.text import format_decoded_record, format_tag
 
 
@@ -153,7 +153,7 @@ class RosGraph:
         if self.transport != "rmw_zenoh":
             return listen_key(tag_key)
         check_bound("ros_domain_id", self.domain_id)
-        if not is_namespace(self.namespace) or not is_relative_topic(stream_key(tag_key, "stream")):
+        if not is_namespace(self.namespace) or not is_relative_topic(output_key(tag_key, "stream")):
             msg = f"--ros-namespace {self.namespace!r} / --tag-key {tag_key!r}: not ROS names"
             raise SettingsError(msg)
         ros_type = ros_topic("tag").type_name(ros_package)

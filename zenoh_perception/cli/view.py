@@ -29,7 +29,7 @@ from zenoh_perception.errors import CompressedImageCdrError, PerceptionError
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.wire.compressed import compressed_image_data
 from zenoh_perception.wire.image_header import image_header_size
-from zenoh_perception.wire.stream_keys import STREAM, any_stream_key, stream_key
+from zenoh_perception.wire.stream_keys import STREAM, any_stream_key, output_key
 
 WINDOW: Final = "zenoh-perception debug image"
 _POLL_S: Final = 0.03
@@ -98,7 +98,7 @@ def view_key(template: str, stream: str | None) -> str:
             "compressed' (or --settings FILE)"
         )
         raise ViewError(msg)
-    return stream_key(template, stream)
+    return output_key(template, stream)
 
 
 def save_atomically(path: Path, data: bytes) -> None:

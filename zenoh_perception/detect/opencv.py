@@ -13,7 +13,14 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.grids import GridKeeper
-from zenoh_perception.detect.types import Detection, Looker, dictionary_name, dictionary_names
+from zenoh_perception.detect.types import (
+    Detection,
+    Detector,
+    Due,
+    Looker,
+    dictionary_name,
+    dictionary_names,
+)
 
 
 def aruco_dictionary(name: str) -> Any:
@@ -28,6 +35,13 @@ def aruco_dictionary(name: str) -> Any:
 
 #: cv2.cornerSubPix's stop: 10 iterations or a move under 0.05 px.
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.05)
+
+
+def set_opencv_threads(threads: int) -> None:
+    """The process's OpenCV threads (``opencv_threads``; 0: OpenCV's choice): set once, when a
+    process that detects starts (the service, a child process of the frame deadline)."""
+    if threads > 0:
+        cv2.setNumThreads(threads)
 
 
 @contextmanager
@@ -90,7 +104,7 @@ def read_markers(
     return detections_from_opencv(corners, ids, offset, dictionaries, indices), rejected
 
 
-class OpenCvDetector:
+class OpenCvDetector(Detector):
     """OpenCV's ArUco detector, with OpenCV's default parameters.
 
     ``dictionary`` is one dictionary or several separated by commas; several are read in one
@@ -144,9 +158,9 @@ class OpenCvDetector:
         look = self.second_look
         if frame and look is not None:
             due = look.due(gray.shape, found)
-            if due == "now":
+            if due is Due.NOW:
                 found = look.look(image, found, self.grids.keep, self._rejected)
-            elif due == "later":
+            elif due is Due.LATER:
                 self._later = (image, found, self._rejected)
         return found
 

@@ -30,7 +30,7 @@ taken :data:`LATER`, after the tag is out, for the frame's other detections. Els
 taken :data:`NOW`, and what it finds may be the frame's tag.
 
 What it finds is merged where no marker of the same id is at that place, and only where the
-light around the marker reads like a printed marker's margin (:data:`QUIET_MIN`): the look
+light around the marker reads like a printed marker's margin (:data:`ADDED_QUIET_MIN`): the look
 reads things the default read rightly passes over, and the generator's look-alikes it reads
 sit on darker surrounds than any true marker it added on the real corpus. A candidate read
 with corrected bits must also be seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`) and
@@ -50,7 +50,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
 from zenoh_perception.detect.regions import same_marker
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Due
 from zenoh_perception.detect.verify import (
     Reading,
     decision_margin,
@@ -85,7 +85,7 @@ SMALL_SIDE_PX: Final = 32.0
 #: markers it added on the real corpus read 0.87 and up, on generated frames 0.77 and up; the
 #: generated look-alikes it read and the veto kept, 0.35-0.85 (8 of 10 under 0.7). The veto's
 #: own bound, for every marker, is 0.35.
-QUIET_MIN: Final = 0.7
+ADDED_QUIET_MIN: Final = 0.7
 #: Every how many frames the look is taken when nothing changed.
 PERIOD: Final = 8
 #: The rejected candidates of a larger frame read again: mean side, frame pixels. Under 8 px
@@ -110,8 +110,8 @@ CORRECTED_MARGIN_BITS: Final = 1.0
 #: box in a label and a stroke of a printed character, 0.41 and 0.30.
 CORRECTED_MIN_SIDE_RATIO: Final = 0.6
 #: :meth:`SecondLook.due`: look before the frame's tag is chosen, or after it is out.
-NOW: Final = "now"
-LATER: Final = "later"
+NOW: Final = Due.NOW
+LATER: Final = Due.LATER
 
 
 def _likeness(image: npt.NDArray[np.uint8], quad: Quad, side: float) -> tuple[bool, float]:
@@ -165,7 +165,7 @@ class SecondLook:
         self._added = False  # the last look added a marker
         self.counters: dict[str, int] = {"looks": 0, "candidates": 0, "added": 0}
 
-    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
+    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> Due | None:
         """When the frame of ``shape`` whose default read found ``found`` gets the look:
         :data:`NOW`, :data:`LATER` or None (not at all); counts the frame."""
         index, previous = self._frames, self._previous
@@ -256,7 +256,7 @@ class SecondLook:
             if not keep(detection.corners) or any(same_marker(detection, o) for o in merged):
                 continue
             reading = read_detection(image, detection, detection.dictionary)
-            if reading.quiet < QUIET_MIN:
+            if reading.quiet < ADDED_QUIET_MIN:
                 continue
             if corrected and not self._clear(reading, detection):
                 continue

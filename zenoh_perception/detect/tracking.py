@@ -43,7 +43,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
 from zenoh_perception.detect.regions import Rect, around, inside, perimeter, same_marker, side
-from zenoh_perception.detect.types import Detection, Looker
+from zenoh_perception.detect.types import Detection, Detector, Looker
 from zenoh_perception.errors import SettingsError
 
 Gray = npt.NDArray[np.uint8]
@@ -126,7 +126,7 @@ def _centre(corners: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
     return out
 
 
-class TrackingDetector:
+class TrackingDetector(Detector):
     """OpenCV's ArUco detector on whole frames when needed, on regions around known markers
     in between (see the module documentation)."""
 

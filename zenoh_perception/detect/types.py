@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from enum import Enum
 from typing import Final, Protocol
 
 import numpy as np
@@ -89,20 +90,42 @@ class Detector(Protocol):
     """Anything that finds markers in a grey (single-channel uint8) image.
 
     A detector may keep state between calls (a stream's previous frames): use one per stream.
+    Besides :meth:`detect` it says what else it can do, each with a default for a detector
+    that cannot (subclass this protocol to take them): a read of the frame left until after
+    its tag is out (:meth:`look_again`), and an array to convert the next frame into
+    (:meth:`gray_buffer`).
     """
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
         """Return every marker found in ``gray``."""
         ...
 
+    def look_again(self) -> list[Detection]:
+        """What a read left until after the frame's tag adds to the frame :meth:`detect` read
+        last (the second look, :mod:`~zenoh_perception.detect.second_look`); once per frame,
+        after :meth:`detect`. None left: []."""
+        return []
+
+    def gray_buffer(self, height: int, width: int) -> npt.NDArray[np.uint8] | None:
+        """Where the next frame's grey image goes, so that it is not copied again (a child
+        process's shared segment); None: any array."""
+        return None
+
+
+class Due(Enum):
+    """When a frame gets its second look: before its tag is chosen, or after it is out."""
+
+    NOW = "now"
+    LATER = "later"
+
 
 class Looker(Protocol):
     """A second read of a frame after the detector's (see
     :class:`~zenoh_perception.detect.second_look.SecondLook`)."""
 
-    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> str | None:
-        """When the frame of ``shape`` whose first read found ``found`` is read again: "now",
-        "later" (after its tag is out) or None."""
+    def due(self, shape: tuple[int, ...], found: Sequence[Detection]) -> Due | None:
+        """When the frame of ``shape`` whose first read found ``found`` is read again
+        (:class:`Due`), or None."""
         ...
 
     def look(

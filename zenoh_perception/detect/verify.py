@@ -91,10 +91,10 @@ with, on some repositories of the corpus, and measures them with on the others.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from functools import cache
-from typing import Final
+from functools import cache, cached_property
+from typing import Final, Protocol
 
 import cv2
 import numpy as np
@@ -687,26 +687,6 @@ def stroke_excess(reading: Reading) -> float:
     return float(excess.max()) / max(contrast, 1.0) if excess.size else 0.0
 
 
-def veto_reason(reading: Reading, clean_code: Callable[[], bool] = lambda: False) -> str | None:
-    """The first of :data:`REASONS` from the cells' levels that rejects ``reading``, or None
-    (the code's margin is checked apart, by :meth:`Verifier.check`). ``clean_code``: whether
-    the marker is large and its cells read as its id by :data:`QUIET_WAIVER_BITS`, asked only
-    of a quiet zone dark on both scales."""
-    if reading.quiet > QUIET_MAX:
-        return "quiet_zone"
-    if (
-        reading.quiet_local is not None
-        and reading.quiet_local < QUIET_LOCAL_MIN
-        and not clean_code()
-    ):
-        return "quiet_zone"  # below QUIET_MIN, on the whole marker's scale and on the local one
-    if reading.border_light > BORDER_LIGHT_MAX:
-        return "border"
-    if reading.grid_ratio > GRID_RATIO_MAX:
-        return "grid"
-    return None
-
-
 class Verifier:
     """Vetoes detections of ``dictionary``'s markers (one dictionary, or several separated by
     commas) that the checks above reject; a detection is read on the grid of the dictionary
@@ -728,37 +708,13 @@ class Verifier:
         self._kept: list[Detection] = []
 
     def check(self, gray: Gray, detection: Detection) -> str | None:
-        """Why ``detection`` is vetoed, or None when it is kept."""
+        """Why ``detection`` is vetoed (the first of :func:`vetoes`), or None when it is kept.
+        Each measure is read only when a rule asks for it."""
         name = detection.dictionary if detection.dictionary in self._sizes else self._first
-        size = self._sizes[name]
-        sides = quad_sides(detection.corners)
-        if min(sides) < MIN_PX_PER_CELL * (size + 2):
-            return "resolution"
-        every = self._all_codes[name]
-        bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
-        reading = read_cells(gray, detection.corners, size, sum(sides) / 4, bits)
-        codes = self._codes.get(name)
-        valid = codes is not None and 0 <= detection.tag_id < len(codes) // 4
-
-        def clean_code() -> bool:
-            if codes is None or not valid or min(sides) < QUIET_WAIVER_PX_PER_CELL * (size + 2):
-                return False
-            return decision_margin(reading.levels(), detection.tag_id, codes) >= QUIET_WAIVER_BITS
-
-        reason = veto_reason(reading, clean_code)
-        if reason is not None:
-            return reason
-        if (
-            min(sides) >= STROKES_MIN_PX_PER_CELL * (size + 2)
-            and stroke_excess(reading) > STROKES_MAX
-        ):
-            return "strokes"
-        if codes is None or not valid:
-            return None  # no margin rule for this dictionary, or not one of its ids
-        if TYPICAL_QUIET[0] <= reading.quiet <= TYPICAL_QUIET[1]:
-            return None  # a printed marker's surround: a close call on the id stands
-        margin = decision_margin(reading.levels(), detection.tag_id, codes)
-        return "margin" if margin < MARGIN_MIN_BITS else None
+        measured = _Measuring(
+            gray, detection, self._sizes[name], self._all_codes[name], self._codes.get(name)
+        )
+        return next(vetoes(measured, DEFAULTS), None)
 
     def verify(self, gray: Gray, detections: list[Detection]) -> tuple[list[Detection], list[str]]:
         """The detections kept (the same objects, in order) and the reason of each veto."""
@@ -831,6 +787,10 @@ class Thresholds:
     margin_min_bits: float = MARGIN_MIN_BITS
 
 
+#: The thresholds the service vetoes with.
+DEFAULTS: Final = Thresholds()
+
+
 def read_detection(
     gray: Gray, detection: Detection, dictionary: str, *, local_always: bool = False
 ) -> Reading:
@@ -844,60 +804,163 @@ def read_detection(
 
 
 def measure(gray: Gray, detection: Detection, dictionary: str) -> Measures:
-    """What every rule of :meth:`Verifier.check` measures on ``detection`` (read on the grid
-    of ``dictionary``, one predefined dictionary), all of it, whatever the thresholds."""
+    """What every rule of :func:`vetoes` measures on ``detection`` (read on the grid of
+    ``dictionary``, one predefined dictionary), all of it, whatever the thresholds."""
     size = int(aruco_dictionary(dictionary).markerSize)
-    sides = quad_sides(detection.corners)
     every = dictionary_codes(dictionary)
-    valid = 0 <= detection.tag_id < len(every) // 4
-    reading = read_detection(gray, detection, dictionary, local_always=True)
-    assert reading.quiet_local is not None  # local_always
-    margin = None
-    if valid and min_distance(dictionary) > 1:
-        margin = decision_margin(reading.levels(), detection.tag_id, every)
+    codes = every if min_distance(dictionary) > 1 else None
+    m = _Measuring(gray, detection, size, every, codes, local_always=True)
     return Measures(
-        shortest_side_px=min(sides),
-        cells_across=size + 2,
-        quiet=reading.quiet,
-        quiet_local=reading.quiet_local,
-        border_light=reading.border_light,
-        grid_ratio=reading.grid_ratio,
-        strokes=stroke_excess(reading),
-        margin=margin,
+        shortest_side_px=m.shortest_side_px,
+        cells_across=m.cells_across,
+        quiet=m.quiet,
+        quiet_local=m.quiet_local,
+        border_light=m.border_light,
+        grid_ratio=m.grid_ratio,
+        strokes=m.strokes,
+        margin=m.margin,
     )
 
 
-def quiet_waived(m: Measures, t: Thresholds) -> bool:
+class Measured(Protocol):
+    """What the rules compare with their thresholds (:class:`Measures`, or read on demand)."""
+
+    @property
+    def shortest_side_px(self) -> float: ...
+    @property
+    def cells_across(self) -> int: ...
+    @property
+    def quiet(self) -> float: ...
+    @property
+    def quiet_local(self) -> float: ...
+    @property
+    def border_light(self) -> float: ...
+    @property
+    def grid_ratio(self) -> float: ...
+    @property
+    def strokes(self) -> float: ...
+    @property
+    def margin(self) -> float | None: ...
+
+
+class _Measuring:
+    """The measures of one detection, each read the first time a rule asks for it: the quad's
+    sides at once, the cells (:func:`read_cells`) for the first rule past ``resolution``, the
+    seams and the code's margin only for their rules. ``codes``: the dictionary's codes where
+    the margin rule applies (None: it does not); ``every``: all of them (the white cells)."""
+
+    def __init__(
+        self,
+        gray: Gray,
+        detection: Detection,
+        marker_size: int,
+        every: Bits,
+        codes: Bits | None,
+        *,
+        local_always: bool = False,
+    ) -> None:
+        self._gray = gray
+        self._detection = detection
+        self._size = marker_size
+        self._every = every
+        self._codes = codes
+        self._local_always = local_always
+        self._sides = quad_sides(detection.corners)
+        self.shortest_side_px = min(self._sides)
+        self.cells_across = marker_size + 2
+
+    @cached_property
+    def reading(self) -> Reading:
+        tag_id, every = self._detection.tag_id, self._every
+        bits = every[4 * tag_id] if 0 <= tag_id < len(every) // 4 else None
+        side_px = sum(self._sides) / 4
+        return read_cells(
+            self._gray,
+            self._detection.corners,
+            self._size,
+            side_px,
+            bits,
+            local_always=self._local_always,
+        )
+
+    @property
+    def quiet(self) -> float:
+        return self.reading.quiet
+
+    @property
+    def quiet_local(self) -> float:
+        local = self.reading.quiet_local
+        assert local is not None  # read whenever quiet is below QUIET_MIN, or local_always
+        return local
+
+    @property
+    def border_light(self) -> float:
+        return self.reading.border_light
+
+    @property
+    def grid_ratio(self) -> float:
+        return self.reading.grid_ratio
+
+    @cached_property
+    def strokes(self) -> float:
+        return stroke_excess(self.reading)
+
+    @cached_property
+    def margin(self) -> float | None:
+        codes, tag_id = self._codes, self._detection.tag_id
+        if codes is None or not 0 <= tag_id < len(codes) // 4:
+            return None  # no margin rule for this dictionary, or not one of its ids
+        return decision_margin(self.reading.levels(), tag_id, codes)
+
+
+def quiet_waived(m: Measured, t: Thresholds) -> bool:
     """Whether the quiet zone's low side spares a detection of ``m`` under ``t``: a large
     marker whose cells read as its id clearly (see :data:`QUIET_WAIVER_BITS`)."""
-    return (
-        m.px_per_cell >= t.quiet_waiver_px_per_cell
-        and m.margin is not None
-        and m.margin >= t.quiet_waiver_bits
-    )
+    if m.shortest_side_px < t.quiet_waiver_px_per_cell * m.cells_across:
+        return False
+    margin = m.margin
+    return margin is not None and margin >= t.quiet_waiver_bits
 
 
-def veto_reasons(measures: Measures, thresholds: Thresholds) -> list[str]:
-    """Every rule of :data:`REASONS` that vetoes a detection of ``measures`` under
-    ``thresholds``, in their order: :meth:`Verifier.check` with other thresholds (its reason
-    is the first, under the module's constants)."""
-    m, t = measures, thresholds
-    reasons: list[str] = []
+def dark_ring(m: Measured, t: Thresholds) -> bool:
+    """Whether the quiet zone reads dark on the whole marker's scale and on the local one."""
+    return m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min
+
+
+def strokes_read(m: Measured, t: Thresholds) -> bool:
+    """Whether the marker has pixels enough a cell for the ``strokes`` rule."""
+    return m.shortest_side_px >= t.strokes_min_px_per_cell * m.cells_across
+
+
+def typical_quiet(m: Measured) -> bool:
+    """Whether the quiet zone is as light as a printed marker's: a close call on the id
+    stands."""
+    return TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
+
+
+def vetoes(m: Measured, t: Thresholds) -> Iterator[str]:
+    """Every rule of :data:`REASONS` that vetoes a detection of ``m`` under ``t``, in their
+    order: the one implementation of the rules. The service takes the first (and so reads a
+    measure only when every rule before it kept the detection); tools/thresholds.py takes
+    them all, under other thresholds too."""
     if m.shortest_side_px < t.min_px_per_cell * m.cells_across:
-        reasons.append("resolution")
-    low = m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min and not quiet_waived(m, t)
-    if m.quiet > t.quiet_max or low:
-        reasons.append("quiet_zone")
+        yield "resolution"
+    if m.quiet > t.quiet_max or (dark_ring(m, t) and not quiet_waived(m, t)):
+        yield "quiet_zone"
     if m.border_light > t.border_light_max:
-        reasons.append("border")
+        yield "border"
     if m.grid_ratio > t.grid_ratio_max:
-        reasons.append("grid")
-    if (
-        m.shortest_side_px >= t.strokes_min_px_per_cell * m.cells_across
-        and m.strokes > t.strokes_max
-    ):
-        reasons.append("strokes")
-    typical = TYPICAL_QUIET[0] <= m.quiet <= TYPICAL_QUIET[1]
-    if m.margin is not None and not typical and m.margin < t.margin_min_bits:
-        reasons.append("margin")
-    return reasons
+        yield "grid"
+    if strokes_read(m, t) and m.strokes > t.strokes_max:
+        yield "strokes"
+    if not typical_quiet(m):
+        margin = m.margin
+        if margin is not None and margin < t.margin_min_bits:
+            yield "margin"
+
+
+def veto_reasons(measures: Measured, thresholds: Thresholds) -> list[str]:
+    """Every rule that vetoes a detection of ``measures`` under ``thresholds`` (:func:`vetoes`):
+    :meth:`Verifier.check` with other thresholds (its reason is the first, under
+    :data:`DEFAULTS`)."""
+    return list(vetoes(measures, thresholds))

@@ -16,16 +16,14 @@ from collections.abc import Mapping
 import zenoh
 
 from zenoh_perception.errors import CameraInfoError, IntrinsicsError
-from zenoh_perception.service.logs import kv
-from zenoh_perception.service.ros_transport import RosTransport
+from zenoh_perception.service.inputs import StreamNaming
+from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.stream import CameraInfo, Stream
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
-from zenoh_perception.wire.stream_keys import StreamNames
 
-# the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 class CameraInfos:
@@ -39,20 +37,17 @@ class CameraInfos:
     def __init__(
         self,
         settings: Settings,
-        ros: RosTransport,
         totals: ServiceStats,
         gate: LogGate,
         *,
-        named: bool,
+        naming: StreamNaming,
         streams: Mapping[str, Stream],
         lock: threading.Lock,
     ) -> None:
         self._settings = settings
-        self._ros = ros
         self._totals = totals
-        self._gate = gate
-        self._named = named
-        self._names = StreamNames(settings.camera_info_key)
+        self._log = LimitedLog(log, gate)
+        self._naming = naming
         self._streams = streams
         self._lock = lock
         # CameraInfos by stream name ("" for every stream), for streams made later too
@@ -71,7 +66,7 @@ class CameraInfos:
             # Counted apart from frames: a bad CameraInfo is no frame, and the intrinsics in
             # use stay as they were.
             self._totals.on_camera_info(err.reason)
-            self._log_limited(
+            self._log(
                 logging.WARNING,
                 f"camera_info:{err.reason}",
                 "camera_info_rejected",
@@ -82,25 +77,22 @@ class CameraInfos:
         self._totals.on_camera_info(None)
         intrinsics = info.intrinsics
         camera: CameraInfo = (intrinsics, (info.width, info.height))
-        name = ""
-        if self._named:
-            topic = self._ros.topic_of(str(sample.key_expr))
-            name = self._names.name(topic) or ""
+        name = self._naming.of_camera_info(str(sample.key_expr))
         with self._lock:
             self._infos[name] = camera
             self._infos.move_to_end(name)
             while len(self._infos) > self._settings.max_streams:
                 self._infos.popitem(last=False)
-            targets = [s for s in self._streams.values() if name in ("", s.name) or not self._named]
+            targets = [s for s in self._streams.values() if name in ("", s.name)]
         changed = [stream.use_camera_info(camera) for stream in targets]
         if any(changed):
             # A camera whose intrinsics change on every message would flood the log: the
             # line is rate-limited and the status always shows the intrinsics in use.
-            self._log_limited(
+            self._log(
                 logging.INFO,
                 "intrinsics",
                 "intrinsics",
-                **({"stream": name} if self._named else {}),
+                **self._naming.fields(name),
                 fx=f"{intrinsics.fx:.2f}",
                 fy=f"{intrinsics.fy:.2f}",
                 cx=f"{intrinsics.cx:.2f}",
@@ -108,10 +100,3 @@ class CameraInfos:
                 width=info.width,
                 height=info.height,
             )
-
-    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
-        """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
-        lines were left out since the last one."""
-        suppressed = self._gate.admit(key)
-        if suppressed is not None:
-            log.log(level, "event=%s %s", event, kv(**fields, suppressed=suppressed))

@@ -1,7 +1,7 @@
 """Detection under a deadline at no per-frame cost: the detector runs in the calling thread, and
 only a frame that stalls it moves detection to a child process for a while.
 
-Handing every frame to a child process (:class:`~zenoh_perception.service.watchdog.
+Handing every frame to a child process (:class:`~zenoh_perception.service.child_detector.
 IsolatedDetector`) bounds every frame but costs each one two process wake-ups. Stalls are rare
 (a checkerboard, a tiled floor), so :class:`GuardedDetector` reads frames in the calling thread
 (the service's worker) and a watchdog thread calls :meth:`GuardedDetector.check`:
@@ -35,7 +35,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError
-from zenoh_perception.service.watchdog import DetectorFactory, IsolatedDetector
+from zenoh_perception.service.child_detector import DetectorFactory, IsolatedDetector
 
 #: After the last abandoned frame, seconds during which frames still go to the child.
 CALM_S: Final = 5.0
@@ -66,7 +66,7 @@ class _Read:
     answered: bool = False
 
 
-class GuardedDetector:
+class GuardedDetector(Detector):
     """A detector built by ``factory``, read in the calling thread and guarded by
     :meth:`check`; see the module documentation. One worker thread calls :meth:`detect` at a
     time (a new one only once the previous one's read was abandoned).
@@ -85,13 +85,16 @@ class GuardedDetector:
         stop: threading.Event | None = None,
         calm_s: float = CALM_S,
         after_stall: DetectorFactory | None = None,
+        opencv_threads: int = 0,
     ) -> None:
         self.deadline_s = deadline_s
         self.calm_s = calm_s
         self._factory = after_stall if after_stall is not None else factory
         self._local: Detector = factory()
         # the child serves frames only after a stall
-        self.isolated = IsolatedDetector(self._factory, deadline_s, stop=stop)
+        self.isolated = IsolatedDetector(
+            self._factory, deadline_s, stop=stop, opencv_threads=opencv_threads
+        )
         self._lock = threading.Lock()
         self._read: _Read | None = None
         self._stuck = 0  # abandoned reads still inside the detector
@@ -137,22 +140,20 @@ class GuardedDetector:
             except FrameAbandonedError:
                 self._calm_at = time.monotonic() + self.calm_s
                 raise
-        detector = self._local
-        return self._in_process(lambda: detector.detect(gray), answered=False)
+        return self._in_process(self._local.detect, gray, answered=False)
 
     def look_again(self) -> list[Detection]:
         """What the in-process detector's second look adds to the frame it read last, where
         that look was left until after the frame's tag; read under the deadline as
         :meth:`detect` is. [] while frames go to the child: its look is not taken."""
-        later = getattr(self._local, "look_again", None)
-        if later is None or self.in_child:
+        if self.in_child:
             return []
-        return self._in_process(later, answered=True)
+        return self._in_process(self._local.look_again, answered=True)
 
     def _in_process(
-        self, read_once: Callable[[], list[Detection]], *, answered: bool
+        self, read_once: Callable[..., list[Detection]], *args: object, answered: bool
     ) -> list[Detection]:
-        """``read_once`` in the calling thread, as the read in flight that :meth:`check`
+        """``read_once(*args)`` in the calling thread, as the read in flight that :meth:`check`
         watches (``answered``: it comes after the frame's tag was published)."""
         read = _Read(
             time.monotonic(), threading.get_ident(), threading.get_native_id(), answered=answered
@@ -162,7 +163,7 @@ class GuardedDetector:
                 raise StaleDetection
             self._read = read
         try:
-            found = read_once()
+            found = read_once(*args)
         finally:
             self._finish(read)
         return found

@@ -9,12 +9,12 @@ import threading
 
 import zenoh
 
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.settings import Settings
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 class OtherServices:
@@ -28,7 +28,7 @@ class OtherServices:
         self, settings: Settings, gate: LogGate, *, zid: str, stop: threading.Event
     ) -> None:
         self._settings = settings
-        self._gate = gate
+        self._log = LimitedLog(log, gate)
         self._zid = zid
         self._stop = stop
         self._lock = threading.Lock()
@@ -49,15 +49,14 @@ class OtherServices:
             return  # the members of a group share the keys by design, one holder a stream
         with self._lock:
             self.count += 1
-        suppressed = self._gate.admit("another_service")
-        if suppressed is not None:
-            fields = kv(
-                zid=other,
-                liveliness=str(sample.key_expr),
-                tag=self._settings.tag_key,
-                detail="another perception service runs here; on the same keys every tag and "
-                "record is published twice: give each its own keys, or start each with the "
-                "same --share-group NAME to divide the cameras between them",
-                suppressed=suppressed,
-            )
-            log.warning("event=another_service %s", fields)
+        self._log(
+            logging.WARNING,
+            "another_service",
+            "another_service",
+            zid=other,
+            liveliness=str(sample.key_expr),
+            tag=self._settings.tag_key,
+            detail="another perception service runs here; on the same keys every tag and "
+            "record is published twice: give each its own keys, or start each with the "
+            "same --share-group NAME to divide the cameras between them",
+        )

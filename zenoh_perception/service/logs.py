@@ -15,7 +15,8 @@ import re
 import sys
 import threading
 import time
-from typing import Final
+from collections.abc import Callable
+from typing import Final, Protocol
 
 _PLAIN: Final = re.compile(r"[^\s\"=\\\x00-\x1f\x7f-\x9f]*")
 #: C0 controls, DEL and C1 controls: what a terminal may act on.
@@ -80,3 +81,31 @@ def configure_logging(level: str = "INFO") -> None:
     root.handlers[:] = [handler]
     root.setLevel(level)
     threading.excepthook = _log_thread_crash
+
+
+class Admits(Protocol):
+    """A rate limit by key (:class:`~zenoh_perception.service.stats.LogGate`)."""
+
+    def admit(self, key: str) -> int | None: ...
+
+
+class LimitedLog:
+    """The one way a repeating line is logged: ``event`` at most once per the ``gate``'s
+    interval for ``key``, saying how many lines were left out since the last one, with what
+    ``about`` returns (the stream a line is about) first among its fields."""
+
+    def __init__(
+        self,
+        logger: logging.Logger,
+        gate: Admits,
+        about: Callable[[], dict[str, str]] = dict,
+    ) -> None:
+        self._logger = logger
+        self._gate = gate
+        self._about = about
+
+    def __call__(self, level: int, key: str, event: str, /, **fields: object) -> None:
+        suppressed = self._gate.admit(key)
+        if suppressed is not None:
+            line = kv(**self._about(), **fields, suppressed=suppressed)
+            self._logger.log(level, "event=%s %s", event, line)

@@ -1,30 +1,58 @@
-"""The perception service: the thin layer that wires streams, transports and the pure
-pipeline to Zenoh.
+"""The perception service: subscribes camera frames on Zenoh and publishes, per frame, the
+closest ArUco tag and a record of every detection.
 
-Each camera is a stream (:mod:`~zenoh_perception.service.stream`): a concrete ``input_key``
-is one, declared at start; a wildcard one (``cams/*/image``), or a list of keys (each
-subscribed apart), is a stream per concrete key it matches, made when its first frame comes
-(at most ``max_streams``; further keys' frames are refused and counted) and forgotten after
-``stream_idle_s`` without a frame
-(:mod:`~zenoh_perception.service.registry`). By default the service subscribes its input keys
-itself; built with ``subscribe_inputs=False`` it subscribes only the concrete keys it is told
-to :meth:`PerceptionService.hold` (instances sharing cameras each hold theirs, or a share
-group, :mod:`~zenoh_perception.service.group`, tells it which).
+Subscribed (each key a setting; wildcards or a list of keys give a stream per camera):
+
+- ``input_key`` (``zed/left/image``): raw frames (pixels + msgpack attachment) or
+  sensor_msgs/Image CDR; ``compressed_input_key`` (``zed/left/image/compressed``):
+  sensor_msgs/CompressedImage CDR;
+- ``camera_info_key`` (off): sensor_msgs/CameraInfo CDR, the intrinsics of the poses.
+
+Published, on every frame (``{stream}`` in a key: the stream's name):
+
+- ``tag_key`` (``tag``): StarterProjectTag CDR (tag_id, x_tag_center_pixel,
+  y_tag_center_pixel, closeness_metric), id -1 when no tag; first, before the rest;
+- ``record_key`` (``perception/tags``): msgpack record of every detection, timings, source;
+- ``detections_key`` (``perception/detections``): apriltag_msgs/AprilTagDetectionArray CDR,
+  and ``tf_key`` (``tf``): tf2_msgs/TFMessage CDR, each only while someone subscribes;
+- ``debug_image_key``: the annotated frame as sensor_msgs/CompressedImage CDR, with
+  ``debug_image`` on and while someone subscribes.
+
+Served: ``status_key`` (``perception/status``), a JSON status queryable; the liveliness
+token ``<liveliness_key>/<zid>`` (``perception/alive``). With ``ros_transport = "rmw_zenoh"``
+the topics are an rmw_zenoh node's (``ros_namespace``, ``ros_node_name``, ``ros_domain_id``).
+
+Settings (config/perception.toml documents each; every one has a flag): detection
+(``detector``, ``dictionary``, ``second_look``, ``verify``, ``confirm_frames``,
+``min_tag_side_px``, ``policy``, ``metric``, ``tag_size_m``, the camera intrinsics); limits
+(``max_frame_bytes``, ``max_frame_pixels``, ``frame_deadline_ms``, ``detector_process``,
+``max_streams``, ``stream_idle_s``, ``workers``); logging (``log_interval_s``,
+``stats_interval_s``, ``no_tag_hint_s``); sharing cameras (``share_group``).
+
+Each camera is a stream (:mod:`~zenoh_perception.service.stream`, whose ``Stream.answer``
+is a frame's whole path): a concrete ``input_key`` is one, declared at start; a wildcard one
+(``cams/*/image``), or a list of keys (each subscribed apart), is a stream per concrete key it
+matches, made when its first frame comes (at most ``max_streams``; further keys' frames are
+refused and counted) and forgotten after ``stream_idle_s`` without a frame
+(:mod:`~zenoh_perception.service.registry`; :class:`~zenoh_perception.service.inputs.
+StreamNaming` decides). By default the service subscribes its input keys itself; built with
+``subscribe_inputs=False`` it subscribes only the concrete keys it is told to
+:meth:`PerceptionService.hold` (instances sharing cameras each hold theirs, or a share group,
+:mod:`~zenoh_perception.service.group`, tells it which).
 
 Threads:
 
 - Zenoh's callback threads only stamp the arrival time and leave the sample in its stream's
   newest-frame lane (O(1), no copy, no decoding).
 - ``workers`` worker threads (default one per core; OpenCV releases the GIL) each take the
-  stream whose newest frame has waited longest and answer that frame; with
-  ``frame_deadline_ms`` a watchdog thread abandons a detection past the deadline
-  (:mod:`~zenoh_perception.service.workers`).
+  stream whose newest frame has waited longest and answer that frame
+  (:mod:`~zenoh_perception.service.workers`); with ``frame_deadline_ms`` a watchdog thread
+  abandons a detection past the deadline (:mod:`~zenoh_perception.service.watchdog`).
 - One reporter thread writes the periodic stats line (and one per stream with a wildcard
   input; :mod:`~zenoh_perception.service.report`), and forgets idle streams.
 
 Every repeating log line goes through one rate limit (``log_interval_s``) per event and
-reason. Opening the session, and its limits, are :mod:`~zenoh_perception.service.session`'s;
-which input a key is, and the stream it names, :mod:`~zenoh_perception.service.inputs`'.
+reason. Opening the session, and its limits, are :mod:`~zenoh_perception.service.session`'s.
 """
 
 from __future__ import annotations
@@ -41,14 +69,24 @@ from typing import Any, Final
 
 import zenoh
 
+from zenoh_perception.detect.opencv import set_opencv_threads
 from zenoh_perception.detect.types import Detector
 from zenoh_perception.errors import ProcessingError, SessionError, zenoh_error_text
 from zenoh_perception.service import report
 from zenoh_perception.service.group import StreamGroup, camera_sources, settings_fingerprint
-from zenoh_perception.service.inputs import COMPRESSED, RAW, ROS, input_patterns, name_of, role_of
+from zenoh_perception.service.inputs import (
+    CDR,
+    COMPRESSED,
+    DECODERS,
+    RAW,
+    Decoder,
+    StreamNaming,
+    kind_of,
+)
 from zenoh_perception.service.liveliness import OtherServices
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.mailbox import Scheduler
+from zenoh_perception.service.outputs import MSGPACK_ENCODING, PublisherPool
 from zenoh_perception.service.registry import StreamRegistry
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.session import (
@@ -60,19 +98,15 @@ from zenoh_perception.service.session import (
     warn_if_unlinked,
 )
 from zenoh_perception.service.stats import LogGate, ServiceStats
-from zenoh_perception.service.stream import (
-    MSGPACK_ENCODING,
-    Arrival,
-    Publishers,
-    Shared,
-    Stream,
-)
+from zenoh_perception.service.stream import Arrival, Shared, Stream
 from zenoh_perception.service.threads import guarded_thread
+from zenoh_perception.service.watchdog import watch
 from zenoh_perception.service.workers import Workers, usable_cpus
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.frames import InputKind
 from zenoh_perception.wire.records import TagCodec
 
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 __all__ = ["MSGPACK_ENCODING", "PROCESSING_ERROR", "PerceptionService", "run"]
 
@@ -126,36 +160,32 @@ class PerceptionService:
         self._subscribe_inputs = subscribe_inputs
         self._stop = threading.Event()
         self._gate = LogGate(settings.log_interval_s)
+        self._log = LimitedLog(log, self._gate)
         self._others = OtherServices(settings, self._gate, zid=self._zid, stop=self._stop)
         self._scheduler: Scheduler[Stream, Arrival] = Scheduler()
-        #: Several streams: a wildcard or list input (a concrete key is one stream, made at
-        #: start).
-        self.wildcard = settings.several
+        #: What each stream is named, and whether lines name it.
+        self.naming = StreamNaming(settings, self._ros)
         self._shared = Shared(
             settings=settings,
             session=session,
             ros=self._ros,
-            publishers=Publishers(session, self._ros),
+            publishers=PublisherPool(session, self._ros),
             scheduler=self._scheduler,
             codec=TagCodec(settings.ros_package),
             gate=self._gate,
             totals=self.stats,
             instance=self._zid,
             stop=self._stop,
+            naming=self.naming,
             detector=detector,
-            named=self.wildcard,
         )
         self._streams = StreamRegistry(self._shared)
         # per held key: its subscription
         self._held: dict[str, Any] = {}
         self._held_lock = threading.Lock()
-        # how each input role's keys name their streams
-        self._patterns = input_patterns(settings)
         #: Set when a worker thread died unexpectedly (the service then answers nothing).
         self.failed = threading.Event()
-        self._workers = Workers(
-            self._scheduler, self._stop, self.failed, self._streams.guarded, pulse=self._pulse
-        )
+        self._workers = Workers(self._scheduler, self._stop, self.failed, pulse=self._pulse)
         self._declared: list[Any] = []
         self._group: StreamGroup | None = None  # with share_group: the streams held
         self._threads: list[threading.Thread] = []
@@ -174,6 +204,8 @@ class PerceptionService:
         if self._started:
             return
         self._started = True
+        # process-wide: set once, before any stream reads a frame
+        set_opencv_threads(self.settings.opencv_threads)
         try:
             self._declare()
         except zenoh.ZError as err:
@@ -183,7 +215,7 @@ class PerceptionService:
             self.settings,
             self._ros,
             zid=self._session.zid(),
-            named=self.wildcard,
+            named=self.naming.named,
             workers=self._worker_count(),
             endpoints=self._endpoints,
         )
@@ -193,10 +225,9 @@ class PerceptionService:
         node_token = self._ros.declare_node()
         if node_token is not None:
             self._declared.append(node_token)
-        if not self.wildcard:
-            # one stream, there from the start: its outputs declared and its detector's
-            # child processes ready before the first frame, as a single camera's service was
-            self._streams.open_single()
+        # the streams known before any frame: their outputs declared and their detectors'
+        # child processes ready before the first frame
+        self._streams.open_at_start()
         if s.camera_info_key:
             self._declared.extend(
                 self._ros.subscribe("camera_info", self._streams.camera_infos.on_sample)
@@ -213,8 +244,9 @@ class PerceptionService:
         )
         self._threads = [guarded_thread(self._report, name="perception-stats", failed=self.failed)]
         if s.frame_deadline_ms > 0 and s.detector_process != "always":
+            loop = partial(watch, self._streams.guarded, self._workers, self._scheduler, self._stop)
             self._threads.append(
-                guarded_thread(self._workers.watch, name="perception-watchdog", failed=self.failed)
+                guarded_thread(loop, name="perception-watchdog", failed=self.failed)
             )
         for thread in self._threads:
             thread.start()
@@ -243,20 +275,21 @@ class PerceptionService:
         if self._ros.rmw_zenoh:
             # raw frames (msgpack attachment) keep coming on the plain keys
             for key in s.entries("input_key"):
-                self._declared.append(session.declare_subscriber(key, partial(self._on_input, RAW)))
+                self._declared.append(session.declare_subscriber(key, self._receiver(RAW)))
             if s.input_key:
-                self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, ROS)))
+                self._declared.extend(self._ros.subscribe("camera", self._receiver(CDR)))
         elif s.input_key:
-            self._declared.extend(self._ros.subscribe("camera", partial(self._on_input, RAW)))
+            self._declared.extend(self._ros.subscribe("camera", self._receiver(RAW)))
         if s.compressed_input_key:
             self._declared.extend(
-                self._ros.subscribe("compressed_camera", partial(self._on_input, COMPRESSED))
+                self._ros.subscribe("compressed_camera", self._receiver(COMPRESSED))
             )
 
     def _worker_count(self) -> int:
         if self.settings.workers > 0:
             return self.settings.workers
-        return len(usable_cpus()) if self.wildcard or not self._subscribe_inputs else 1
+        several = self.naming.most_streams > 1 or not self._subscribe_inputs
+        return len(usable_cpus()) if several else 1
 
     def close(self) -> None:
         """Stop the workers, undeclare everything (the session itself is the caller's)."""
@@ -295,46 +328,46 @@ class PerceptionService:
 
     # -- the cameras served -------------------------------------------------------------------
 
-    def hold(self, stream_key: str) -> None:
-        """Subscribe the frames of the concrete key ``stream_key`` (its stream is made when
+    def hold(self, input_key: str) -> None:
+        """Subscribe the frames of the concrete key ``input_key`` (its stream is made when
         its first frame comes). Idempotent; thread-safe; meant for ``subscribe_inputs=False``.
 
-        ``stream_key`` is a key ``input_key`` matches (raw frames or sensor_msgs/Image CDR;
+        ``input_key`` is a key ``input_key`` matches (raw frames or sensor_msgs/Image CDR;
         with ``ros_transport = "rmw_zenoh"`` the topic's rmw_zenoh key) or one
         ``compressed_input_key`` matches (CompressedImage CDR).
 
         Raises:
-            SettingsError: ``stream_key`` is not a concrete key either input matches.
+            SettingsError: ``input_key`` is not a concrete key either input matches.
             SessionError: Zenoh refused the subscription.
 
         """
-        role = self._role_of(stream_key)
+        kind = self._kind_of(input_key)
         with self._held_lock:
-            if stream_key in self._held or self._stop.is_set():
+            if input_key in self._held or self._stop.is_set():
                 return
             try:
                 # called on Zenoh's own thread (O(1)): no thread of its own per held stream
-                self._held[stream_key] = self._session.declare_subscriber(
-                    stream_key,
-                    zenoh.handlers.Callback(partial(self._on_input, role), indirect=False),
+                self._held[input_key] = self._session.declare_subscriber(
+                    input_key,
+                    zenoh.handlers.Callback(self._receiver(kind), indirect=False),
                 )
             except zenoh.ZError as err:
-                msg = f"cannot subscribe {stream_key!r}: {zenoh_error_text(err)}"
+                msg = f"cannot subscribe {input_key!r}: {zenoh_error_text(err)}"
                 raise SessionError(msg) from err
 
-    def release(self, stream_key: str) -> None:
-        """Unsubscribe ``stream_key`` and forget its stream (its detector state, counters and
+    def release(self, input_key: str) -> None:
+        """Unsubscribe ``input_key`` and forget its stream (its detector state, counters and
         publishers; a frame being answered is answered first). Idempotent; thread-safe."""
         with self._held_lock:
-            subscriber = self._held.pop(stream_key, None)
+            subscriber = self._held.pop(input_key, None)
             if subscriber is None:
                 return
-            others = [self._name_of(self._role_of(k), k) for k in self._held]
+            others = [self._name_of(k) for k in self._held]
         try:
             subscriber.undeclare()
         except zenoh.ZError as err:  # session closed
             log.debug("event=undeclare_failed %s", kv(error=err))
-        name = self._name_of(self._role_of(stream_key), stream_key)
+        name = self._name_of(input_key)
         if name is not None and name not in others:
             self._streams.retire(name)
 
@@ -345,7 +378,7 @@ class PerceptionService:
 
     def streams(self) -> list[str]:
         """The keys of the streams served now (the key each one's last frame came on)."""
-        return [stream.key for stream in self._streams.by_key()]
+        return [stream.input_key for stream in self._streams.by_key()]
 
     def _pulse(self) -> None:
         """The worker loop's heartbeat (a share group's proof that this instance works)."""
@@ -353,45 +386,40 @@ class PerceptionService:
         if group is not None:
             group.beat()
 
-    def _role_of(self, key: str) -> str:
+    def _kind_of(self, key: str) -> InputKind:
         """The input whose samples ``key`` carries (SettingsError: none, or not concrete)."""
-        return role_of(key, self.settings, self._ros)
+        return kind_of(key, self.settings, self._ros)
 
-    def _name_of(self, role: str, key: str) -> str | None:
-        """The name of the stream ``key`` (a sample's key on input ``role``) belongs to;
-        None when it matches no input."""
-        return name_of(role, key, self._patterns, self._ros) if self.wildcard else ""
+    def _name_of(self, key: str) -> str | None:
+        """The name of the stream the concrete ``key`` belongs to; None when it matches no
+        input."""
+        return self.naming.name(self._kind_of(key), key)
 
     # -- Zenoh callbacks: O(1), never block ---------------------------------------------------
 
-    def _on_input(self, role: str, sample: zenoh.Sample) -> None:
-        now = time.monotonic_ns()
-        arrival = Arrival(
-            sample, now, time.time_ns(), ros_cdr=role == ROS, compressed=role == COMPRESSED
-        )
-        name = "" if not self.wildcard else self._name_of(role, str(sample.key_expr))
+    def _receiver(self, kind: InputKind) -> partial[None]:
+        """The callback of a subscription to input ``kind``: its decoder bound here."""
+        return partial(self._on_input, kind, DECODERS[kind])
+
+    def _on_input(self, kind: InputKind, decode: Decoder, sample: zenoh.Sample) -> None:
+        arrival = Arrival(sample, time.monotonic_ns(), time.time_ns(), decode)
+        name = self.naming.name(kind, str(sample.key_expr))
         stream = None if name is None else self._streams.serve(name)
         if stream is None:
             if self._stop.is_set():
                 return
             self.stats.on_received(False)
             self.stats.on_rejected(TOO_MANY_STREAMS)
-            suppressed = self._gate.admit(TOO_MANY_STREAMS)
-            if suppressed is not None:
-                log.warning(
-                    "event=rejected %s",
-                    kv(
-                        reason=TOO_MANY_STREAMS,
-                        key=str(sample.key_expr),
-                        max_streams=self.settings.max_streams,
-                        suppressed=suppressed,
-                    ),
-                )
+            self._log(
+                logging.WARNING,
+                TOO_MANY_STREAMS,
+                "rejected",
+                reason=TOO_MANY_STREAMS,
+                key=str(sample.key_expr),
+                max_streams=self.settings.max_streams,
+            )
             return
-        stream.last_ns = now
-        if not stream.key:
-            stream.key = str(sample.key_expr)
-        stream.stats.on_received(self._scheduler.put(stream.lane, arrival, now))
+        stream.arrive(arrival)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         try:
@@ -401,16 +429,9 @@ class PerceptionService:
                 encoding=zenoh.Encoding.APPLICATION_JSON,
             )
         except zenoh.ZError as err:  # the querier or the session went away
-            self._log_limited(
+            self._log(
                 logging.DEBUG, "status_reply", "status_reply_failed", error=zenoh_error_text(err)
             )
-
-    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
-        """Log ``event`` at most once per ``log_interval_s`` for ``key``, saying how many
-        lines were left out since the last one."""
-        suppressed = self._gate.admit(key)
-        if suppressed is not None:
-            log.log(level, "event=%s %s", event, kv(**fields, suppressed=suppressed))
 
     # -- observability -----------------------------------------------------------------------
 
@@ -421,7 +442,7 @@ class PerceptionService:
             totals,
             self._streams.by_key(),
             retired_vetoes=self._streams.retired_vetoes,
-            named=self.wildcard,
+            named=self.naming.named,
             zid=self._zid,
             worker_alive=not self.failed.is_set(),
             other_services=self._others.count,
@@ -434,14 +455,13 @@ class PerceptionService:
         interval = self.settings.stats_interval_s
         next_report = time.monotonic() + interval if interval > 0 else math.inf
         while not self._stop.wait(min(_REAP_S, max(0.0, next_report - time.monotonic()))):
-            if self.wildcard:
-                self._streams.reap()
+            self._streams.reap()
             if time.monotonic() < next_report:
                 continue
             next_report += interval
             report.log_stats(
                 self.status(),
-                per_stream=self.wildcard,
+                per_stream=self.naming.named,
                 input_key=",".join(self.settings.entries("input_key")),
             )
 

@@ -17,8 +17,7 @@ from zenoh_perception.service.camera_infos import CameraInfos
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.stream import Shared, Stream
 
-# the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 class StreamRegistry:
@@ -31,22 +30,22 @@ class StreamRegistry:
         #: The CameraInfo subscription's callback and the infos kept for streams made later.
         self.camera_infos = CameraInfos(
             shared.settings,
-            shared.ros,
             shared.totals,
             shared.gate,
-            named=shared.named,
+            naming=shared.naming,
             streams=self._streams,
             lock=self._lock,
         )
         #: The vetoes of the streams forgotten, by reason.
         self.retired_vetoes: Counter[str] = Counter(dict.fromkeys(VETO_REASONS, 0))
 
-    def open_single(self) -> None:
-        """Make and open the one stream of a concrete input (``""``), before any frame: its
-        outputs declared and its detector's child processes ready."""
-        stream = Stream("", self._shared)
-        stream.open(start_detector=True)
-        self._streams[""] = stream
+    def open_at_start(self) -> None:
+        """Make and open the streams known before any frame (a concrete input's one,
+        ``""``): their outputs declared and their detectors' child processes ready."""
+        for name in self._shared.naming.at_start:
+            stream = Stream(name, self._shared)
+            stream.open(start_detector=True)
+            self._streams[name] = stream
 
     def serve(self, name: str) -> Stream | None:
         """The stream ``name``, made when new (None past ``max_streams``, or once stopped)."""
@@ -56,7 +55,7 @@ class StreamRegistry:
         with self._lock:
             stream = self._streams.get(name)
             if stream is None and not self._shared.stop.is_set():
-                if len(self._streams) >= self._shared.settings.max_streams:
+                if len(self._streams) >= self._shared.naming.most_streams:
                     return None
                 stream = self._streams[name] = Stream(name, self._shared)
                 info = self.camera_infos.for_stream(name)
@@ -73,13 +72,18 @@ class StreamRegistry:
         self.retired_vetoes.update(stream.vetoed)
         if self._shared.scheduler.remove(stream.lane):
             stream.close()  # else the worker holding it closes it
-        log.info("event=stream_forgotten %s", kv(name=stream.name, stream=stream.key))
+        log.info("event=stream_forgotten %s", kv(name=stream.name, stream=stream.input_key))
 
     def reap(self) -> None:
-        """Forget the streams idle for ``stream_idle_s``."""
+        """Forget the streams idle for ``stream_idle_s`` (but those known at start)."""
         horizon = time.monotonic_ns() - int(self._shared.settings.stream_idle_s * 1e9)
+        kept = self._shared.naming.at_start
         with self._lock:
-            idle = [name for name, s in self._streams.items() if s.last_ns < horizon]
+            idle = [
+                name
+                for name, s in self._streams.items()
+                if s.last_ns < horizon and name not in kept
+            ]
         for name in idle:
             self.retire(name)
 
@@ -91,7 +95,7 @@ class StreamRegistry:
     def by_key(self) -> list[Stream]:
         """The streams served now, sorted by key."""
         with self._lock:
-            return sorted(self._streams.values(), key=lambda s: s.key)
+            return sorted(self._streams.values(), key=lambda s: s.input_key)
 
     def guarded(self) -> list[Stream]:
         """The streams whose detection a deadline guards (the watchdog's)."""

@@ -15,8 +15,7 @@ from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stream import Stream
 from zenoh_perception.settings import Settings
 
-# the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 def log_started(

@@ -35,7 +35,7 @@ class Encoded:
     payload: bytes
 
 
-class Publishers(Protocol):
+class PublisherSource(Protocol):
     """Where the outputs' publishers come from: the ROS transport, or a stream's outputs."""
 
     def publisher(self, role: str, *, express: bool = False) -> TopicPublisher: ...
@@ -48,7 +48,7 @@ class RosOutputs:
         self._settings = settings
         self._publishers: dict[str, TopicPublisher] = {}
 
-    def declare(self, transport: Publishers) -> list[TopicPublisher]:
+    def declare(self, transport: PublisherSource) -> list[TopicPublisher]:
         """Declare a publisher per output whose key is set; they are the caller's to undeclare."""
         for topic in ROS_OUTPUTS:
             if getattr(self._settings, topic.key_setting):

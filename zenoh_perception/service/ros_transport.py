@@ -44,7 +44,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     type_hash,
 )
 from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
-from zenoh_perception.wire.stream_keys import has_wildcard, key_entries, stream_key
+from zenoh_perception.wire.stream_keys import has_wildcard, key_entries, output_key
 
 RMW_ZENOH: str = "rmw_zenoh"
 
@@ -142,7 +142,7 @@ class RosTransport:
         key setting holds ``{stream}``; of ``entry`` (one of its entries) when the setting is
         a list."""
         topic = ros_topic(role)
-        bridge_key = stream_key(self._setting(topic) if entry is None else entry, stream)
+        bridge_key = output_key(self._setting(topic) if entry is None else entry, stream)
         if not self.rmw_zenoh:
             return bridge_key
         hash_ = ANY_HASH if topic.any_hash else self._hash(topic)
@@ -258,7 +258,7 @@ class RosTransport:
         return type_hash(self._store, self._type(topic))
 
     def _fq_topic(self, topic: RosTopic, stream: str = "") -> str:
-        name = stream_key(self._setting(topic), stream)
+        name = output_key(self._setting(topic), stream)
         return fully_qualified(self.node.namespace, name)
 
     def _token(

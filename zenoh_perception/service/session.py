@@ -11,12 +11,12 @@ from typing import Final
 import zenoh
 
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.settings import Settings
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 #: Zenoh configuration path of the largest message a session accepts.
 MAX_MESSAGE_SIZE_PATH: Final = "transport/link/rx/max_message_size"
@@ -40,7 +40,7 @@ def open_session(
 
     """
     client = json.loads(conf.get_json("mode") or "null") == "client"
-    gate = LogGate(log_interval_s)
+    limited = LimitedLog(log, LogGate(log_interval_s))
     while not stop.is_set():
         try:
             return zenoh.open(conf)
@@ -49,10 +49,9 @@ def open_session(
             if not client:
                 msg = f"cannot open the Zenoh session: {text}"
                 raise SessionError(msg) from err
-            suppressed = gate.admit("connect_failed")
-            if suppressed is not None:
-                fields = kv(retry_s=retry_s, suppressed=suppressed, error=text)
-                log.warning("event=connect_failed %s", fields)
+            limited(
+                logging.WARNING, "connect_failed", "connect_failed", retry_s=retry_s, error=text
+            )
             stop.wait(retry_s)
     return None
 

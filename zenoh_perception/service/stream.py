@@ -10,11 +10,15 @@ session, the codec, the log rate limit and a publisher two streams' keys name al
 key without ``{stream}``): a marker seen on one camera never confirms, vetoes or carries
 over to another's frame.
 
-Its newest frame waits in its :class:`~zenoh_perception.service.mailbox.Lane`; one worker
-at a time runs :meth:`Stream.handle` on it: checks the payload's size, copies it out of
-Zenoh once, decodes a zero-copy view, runs the pipeline up to the selected tag and publishes
-``tag``, then lets the pipeline finish the frame (the veto's other detections) and publishes
-the record (and the ROS outputs, and the debug image while it is watched).
+Zenoh's callback hands it a frame (:meth:`Stream.arrive`); its newest frame waits in its
+:class:`~zenoh_perception.service.mailbox.Lane`, and one worker at a time answers it
+(:meth:`Stream.handle`). :meth:`Stream.answer` is a frame's whole path, top to bottom:
+decode (the input's decoder, bound when it was subscribed: the payload's size checked, one
+copy out of Zenoh, a zero-copy view), detect up to the selected tag, publish ``tag``, finish
+the frame (the veto's other detections, the look after the tag), then the record, the ROS
+outputs and the debug image while it is watched (:class:`~zenoh_perception.service.outputs.
+StreamOutputs`). Nothing outside the stream writes its state: the service reads its status,
+and the watchdog asks it to check its deadline (:meth:`Stream.check_deadline`).
 
 Everything it does with a frame, up to and including each publication, runs inside its
 error handling: a bad payload is a rejection counted by reason, a failure of the pipeline or
@@ -29,7 +33,7 @@ import math
 import struct
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from functools import partial
 from typing import Any, Final
 
@@ -43,37 +47,26 @@ from zenoh_perception.errors import (
     ProcessingError,
     zenoh_error_text,
 )
-from zenoh_perception.pipeline import Analysis, Pipeline, detector_for
+from zenoh_perception.pipeline import Analysis, Pending, Pipeline, detector_for
+from zenoh_perception.service.child_detector import IsolatedDetector
 from zenoh_perception.service.guard import GuardedDetector
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.inputs import Decoder, StreamNaming
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.mailbox import Lane, Scheduler
-from zenoh_perception.service.ros_outputs import RosOutputs
-from zenoh_perception.service.ros_transport import RosTransport, TopicPublisher
+from zenoh_perception.service.outputs import PublisherPool, StreamOutputs
+from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stats import LogGate, ServiceStats
-from zenoh_perception.service.watchdog import IsolatedDetector
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.wire.compressed import decode_compressed_cdr
-from zenoh_perception.wire.debug_image import annotate, encode_compressed_image
-from zenoh_perception.wire.frames import (
-    Frame,
-    check_payload_size,
-    decode_image_cdr,
-    decode_raw_frame,
-    to_bgr,
-)
+from zenoh_perception.wire.frames import Frame, InputKind, check_payload_size
 from zenoh_perception.wire.records import FrameRecord, TagCodec
-from zenoh_perception.wire.stream_keys import stream_key
 
-log = logging.getLogger("zenoh_perception.service.node")
-
-MSGPACK_ENCODING = zenoh.Encoding("application/msgpack")
+log = logging.getLogger(__name__)
 
 # What each stage may raise on a frame it cannot handle (OpenCV, rosbags' CDR serialiser,
 # msgpack); anything else is a bug that stops the worker and makes ``run`` exit 1.
 _DETECT_ERRORS: Final = (cv2.error, ValueError)
 _ENCODE_ERRORS: Final = (struct.error, ValueError, OverflowError, TypeError)
-_DEBUG_ERRORS: Final = (cv2.error, struct.error, ValueError, OverflowError)
 
 #: Intrinsics of a CameraInfo and the image size they are for.
 CameraInfo = tuple[Intrinsics, tuple[int, int]]
@@ -81,63 +74,13 @@ CameraInfo = tuple[Intrinsics, tuple[int, int]]
 
 @dataclass(frozen=True, slots=True)
 class Arrival:
-    """A frame as Zenoh's callback left it: the sample, untouched, and when it came."""
+    """A frame as Zenoh's callback left it: the sample, untouched, when it came, and the
+    decoder of the input it came on."""
 
     sample: zenoh.Sample
     received_ns: int  # monotonic clock
     wall_ns: int  # time since the epoch
-    #: Came on an rmw_zenoh key: sensor_msgs/Image CDR, its attachment rmw_zenoh's own.
-    ros_cdr: bool = False
-    compressed: bool = False  # CompressedImage CDR (the compressed camera topic)
-
-
-class Publishers:
-    """The streams' publishers by key: streams whose keys are alike (a TF key without
-    ``{stream}``) share one, undeclared when the last of them is closed. Thread-safe."""
-
-    def __init__(self, session: zenoh.Session, ros: RosTransport) -> None:
-        self._session = session
-        self._ros = ros
-        self._lock = threading.Lock()
-        self._held: dict[str, tuple[TopicPublisher, int]] = {}
-
-    def ros(self, role: str, stream: str, *, express: bool) -> TopicPublisher:
-        """The publisher of ROS topic ``role`` for ``stream``."""
-        return self._acquire(
-            self._ros.key(role, stream),
-            lambda: self._ros.publisher(role, express=express, stream=stream),
-        )
-
-    def record(self, key: str) -> TopicPublisher:
-        """The publisher of the msgpack record on ``key``."""
-        return self._acquire(
-            key,
-            lambda: TopicPublisher(
-                self._session.declare_publisher(key, encoding=MSGPACK_ENCODING, express=True)
-            ),
-        )
-
-    def _acquire(self, key: str, declare: Any) -> TopicPublisher:
-        with self._lock:
-            held = self._held.get(key)
-            publisher: TopicPublisher = held[0] if held is not None else declare()
-            self._held[key] = (publisher, (held[1] if held is not None else 0) + 1)
-            return publisher
-
-    def release(self, publisher: TopicPublisher) -> None:
-        """One holder less; undeclared with the last.
-
-        Raises:
-            zenoh.ZError: Zenoh refused the undeclaration (the session closed).
-
-        """
-        with self._lock:
-            publisher_held, count = self._held[publisher.key]
-            if count > 1:
-                self._held[publisher.key] = (publisher_held, count - 1)
-                return
-            del self._held[publisher.key]
-        publisher.undeclare()
+    decode: Decoder
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,42 +90,48 @@ class Shared:
     settings: Settings
     session: zenoh.Session
     ros: RosTransport
-    publishers: Publishers
+    publishers: PublisherPool
     scheduler: Scheduler[Stream, Arrival]
     codec: TagCodec
     gate: LogGate
     totals: ServiceStats  # the service's counters: each stream's are counted there too
     instance: str  # the service's Zenoh id, in every record
     stop: threading.Event
+    naming: StreamNaming
     #: A detector for every stream (tests): unguarded, shared.
     detector: Detector | None = None
-    #: Lines name the stream (a wildcard input: several streams).
-    named: bool = field(default=False)
 
 
-class _StreamPublishers:
-    """A stream's view of :class:`Publishers`, for :class:`RosOutputs`."""
+@dataclass(frozen=True, slots=True)
+class Stall:
+    """A read the stream's deadline abandoned: the worker thread left inside it."""
 
-    def __init__(self, publishers: Publishers, stream: str) -> None:
-        self._publishers = publishers
-        self._stream = stream
+    worker: int | None
 
-    def publisher(self, role: str, *, express: bool = False) -> TopicPublisher:
-        return self._publishers.ros(role, self._stream, express=express)
+
+@dataclass(frozen=True, slots=True)
+class _Times:
+    """When a frame's steps ended (monotonic ns)."""
+
+    started: int
+    decoded: int
+    published: int
 
 
 class Stream:
     """One camera's frames and everything the service keeps for them; see the module doc.
 
     Built in Zenoh's callback thread (cheap: counters and a lane); :meth:`open` (the first
-    worker to take its frame, or the service at start for a concrete input) builds the
+    worker to take its frame, or the service at start for a stream known then) builds the
     pipeline and declares the outputs.
     """
 
     def __init__(self, name: str, shared: Shared) -> None:
         s = shared.settings
+        #: The stream's name: what ``{stream}`` becomes in its output keys.
         self.name = name
-        self.key = ""  # the concrete key the last frame came on
+        #: The concrete key its frames come on (the first frame's).
+        self.input_key = ""
         self._shared = shared
         self.stats = ServiceStats(
             frame_budget_ms=s.frame_budget_ms,
@@ -192,21 +141,16 @@ class Stream:
         self.lane: Lane[Stream, Arrival] = shared.scheduler.lane(self)
         self.last_ns = time.monotonic_ns()  # the last frame's arrival
         self.opened = False
-        self.worker: int | None = None  # the thread answering its frame (threading.get_ident)
+        self._worker: int | None = None  # the thread answering its frame (threading.get_ident)
         self.guard: GuardedDetector | None = None
         self._isolated: IsolatedDetector | GuardedDetector | None = None
         self._pipeline: Pipeline | None = None
         self._camera_info: CameraInfo | None = None
-        self._declared: list[TopicPublisher] = []
-        self._listener: Any = None
-        self._subscription: zenoh.LivelinessToken | None = None
-        self._tag_pub: TopicPublisher | None = None
-        self._record_pub: TopicPublisher | None = None
-        self._debug_pub: TopicPublisher | None = None
-        self._ros_outputs = RosOutputs(s)
-        self.debug_watched = threading.Event()
-        self._last_debug = 0.0
-        self.debug_images = 0
+        self._subscription: Any = None  # a liveliness token, on an rmw_zenoh graph
+        self._log = LimitedLog(log, shared.gate, self._named)
+        self._outputs = StreamOutputs(
+            shared.publishers, s, name, self._publish_failed, self._debug_watched
+        )
         self._seq = 0
         self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._open_lock = threading.Lock()
@@ -231,13 +175,22 @@ class Stream:
                 factory, deadline_s = partial(detector_for, s), s.frame_deadline_ms / 1e3
                 # the detectors that take over from a stalled read keep grids away at once
                 wary = partial(detector_for, s, wary=True)
+                threads = s.opencv_threads  # the child processes' own, set when each starts
                 if s.detector_process == "always":
                     self._isolated = IsolatedDetector(
-                        factory, deadline_s, stop=shared.stop, after_stall=wary
+                        factory,
+                        deadline_s,
+                        stop=shared.stop,
+                        after_stall=wary,
+                        opencv_threads=threads,
                     )
                 else:
                     self._isolated = self.guard = GuardedDetector(
-                        factory, deadline_s, stop=shared.stop, after_stall=wary
+                        factory,
+                        deadline_s,
+                        stop=shared.stop,
+                        after_stall=wary,
+                        opencv_threads=threads,
                     )
                 detector = self._isolated
             self._pipeline = Pipeline(s, detector)
@@ -246,25 +199,15 @@ class Stream:
             if self._isolated is not None and start_detector:
                 self._isolated.start()
             try:
-                self._declare()
+                # on an rmw_zenoh graph, the camera topic a pattern matched is listed as
+                # subscribed
+                key = self.input_key
+                self._subscription = shared.ros.stream_subscription(key) if key else None
+                self._outputs.declare()
             except zenoh.ZError:
                 self._release()
                 raise
             self.opened = True
-
-    def _declare(self) -> None:
-        shared, s, name = self._shared, self._shared.settings, self.name
-        # on an rmw_zenoh graph, the camera topic a pattern matched is listed as subscribed
-        self._subscription = shared.ros.stream_subscription(self.key) if self.key else None
-        self._tag_pub = shared.publishers.ros("tag", name, express=True)
-        self._declared.append(self._tag_pub)
-        self._record_pub = shared.publishers.record(stream_key(s.record_key, name))
-        self._declared.append(self._record_pub)
-        self._declared += self._ros_outputs.declare(_StreamPublishers(shared.publishers, name))
-        if s.debug_image:
-            self._debug_pub = shared.publishers.ros("debug_image", name, express=False)
-            self._declared.append(self._debug_pub)
-            self._listener = self._debug_pub.declare_matching_listener(self._on_debug_matching)
 
     def close(self) -> None:
         """Stop its detector's processes and undeclare its outputs (no worker holds it)."""
@@ -273,24 +216,17 @@ class Stream:
         self._release()
 
     def _release(self) -> None:
-        entities: list[Any] = [self._listener] if self._listener is not None else []
-        entities += [self._subscription] if self._subscription is not None else []
-        self._listener = self._subscription = None
-        for entity in entities:
+        subscription, self._subscription = self._subscription, None
+        if subscription is not None:
             try:
-                entity.undeclare()
+                subscription.undeclare()
             except zenoh.ZError as err:  # session already closed
                 log.debug("event=undeclare_failed %s", kv(error=err))
-        for publisher in reversed(self._declared):
-            try:
-                self._shared.publishers.release(publisher)
-            except zenoh.ZError as err:
-                log.debug("event=undeclare_failed %s", kv(error=err))
-        self._declared.clear()
+        self._outputs.release()
 
     @property
     def tag_key(self) -> str:
-        return self._tag_pub.key if self._tag_pub is not None else ""
+        return self._outputs.tag_key
 
     @property
     def intrinsics(self) -> Intrinsics | None:
@@ -300,7 +236,24 @@ class Stream:
     def vetoed(self) -> dict[str, int]:
         return {} if self._pipeline is None else dict(self._pipeline.vetoed)
 
+    @property
+    def debug_watched(self) -> threading.Event:
+        return self._outputs.debug_watched
+
+    @property
+    def debug_images(self) -> int:
+        return self._outputs.debug_images
+
     # -- callbacks ----------------------------------------------------------------------------
+
+    def arrive(self, arrival: Arrival) -> None:
+        """A frame came (Zenoh's callback thread: O(1), no copy): it waits in the lane,
+        replacing a frame not yet taken (counted as dropped)."""
+        self.last_ns = arrival.received_ns
+        if not self.input_key:
+            self.input_key = str(arrival.sample.key_expr)
+        scheduler = self._shared.scheduler
+        self.stats.on_received(scheduler.put(self.lane, arrival, arrival.received_ns))
 
     def use_camera_info(self, info: CameraInfo) -> bool:
         """Apply a CameraInfo's intrinsics to this stream's frames of its size; False when
@@ -313,27 +266,25 @@ class Stream:
             pipeline.use_camera_info(info[0], *info[1])
         return True
 
-    def _on_debug_matching(self, status: zenoh.MatchingStatus) -> None:
-        if status.matching:
-            self.debug_watched.set()
-        else:
-            self.debug_watched.clear()
-        self._log_limited(logging.INFO, "debug_image", "debug_image", watched=status.matching)
+    def _debug_watched(self, watched: bool) -> None:
+        self._log(logging.INFO, "debug_image", "debug_image", watched=watched)
 
     # -- one frame ------------------------------------------------------------------------------
 
     def handle(self, arrival: Arrival) -> None:
-        """Answer one frame, counting whatever goes wrong (see the module documentation).
+        """Answer one frame in the calling worker, counting whatever goes wrong (see the
+        module documentation).
 
         Raises:
             StaleDetection: the watchdog abandoned this thread's read (the thread must end).
             zenoh.ZError: the outputs could not be declared (the stream's first frame).
 
         """
+        self._worker = threading.get_ident()
         if not self.opened:
             self.open()
         try:
-            self._process(arrival)
+            self.answer(arrival)
         except FrameDecodeError as err:
             self.reject(err.reason, err)
         except FrameAbandonedError as err:
@@ -345,8 +296,9 @@ class Stream:
             self.stats.on_processing_error(err.stage)
             self.reject(err.reason, err)
 
-    def _process(self, arrival: Arrival) -> None:
-        """Decode, analyse and publish one frame.
+    def answer(self, arrival: Arrival) -> None:
+        """A frame's whole path: decode, detect up to the selected tag, publish ``tag``, finish
+        the frame, then the record and the outputs beside it.
 
         Raises:
             FrameDecodeError: the payload is refused (its ``reason`` is counted).
@@ -354,30 +306,51 @@ class Stream:
 
         """
         started = time.monotonic_ns()
+        frame, kind = self._decode(arrival)
+        decoded = time.monotonic_ns()
+        pending = self._detect(frame)
+        self._outputs.put_tag(self._encode_tag(pending))
+        times = _Times(started, decoded, time.monotonic_ns())
+        # From here on the frame is answered: later failures are counted, not rejections.
+        analysis = self._finish(pending)
+        if analysis is None:
+            return
+        record = self._record(arrival, frame, kind, analysis, times)
+        self._put_record(record)
+        self._outputs.put_ros(analysis, record.stamp_ns, frame.frame_id, self.processing_failed)
+        self._count(arrival, analysis, times)
+        self._hint_if_tagless(bool(analysis.tags))
+        if self._outputs.debug_watched.is_set():
+            self._put_debug(frame, analysis, record.stamp_ns)
+
+    def _decode(self, arrival: Arrival) -> tuple[Frame, InputKind]:
+        """The frame's pixels (a view of the one copy out of Zenoh) and how they were read.
+
+        Raises:
+            FrameDecodeError: the payload is refused.
+
+        """
         s = self._shared.settings
-        pipeline, tag_pub, record_pub = self._pipeline, self._tag_pub, self._record_pub
-        assert pipeline is not None and tag_pub is not None and record_pub is not None
         sample = arrival.sample
         # The size is known before the one copy out of Zenoh: an oversized frame costs nothing.
         check_payload_size(len(sample.payload), s.max_frame_bytes)
-        payload = sample.payload.to_bytes()
-        attachment = sample.attachment
-        if arrival.compressed:
-            # colour only for a watched debug image; the detector reads grey
-            frame = decode_compressed_cdr(
-                payload, max_pixels=s.max_frame_pixels, grey=not self.debug_watched.is_set()
-            )
-            source = "compressed"
-        elif attachment is not None and not arrival.ros_cdr:
-            frame = decode_raw_frame(payload, attachment.to_bytes(), max_pixels=s.max_frame_pixels)
-            source = "raw"
-        else:
-            frame = decode_image_cdr(payload, max_pixels=s.max_frame_pixels)
-            source = "cdr"
-        decoded = time.monotonic_ns()
+        # colour only for a watched debug image; the detector reads grey
+        grey = not self._outputs.debug_watched.is_set()
+        return arrival.decode(
+            sample.payload.to_bytes(), sample.attachment, s.max_frame_pixels, grey
+        )
+
+    def _detect(self, frame: Frame) -> Pending:
+        """The frame's selected tag, the rest of its analysis pending.
+
+        Raises:
+            ProcessingError: the detector failed on the frame (stage ``detect``).
+
+        """
+        assert self._pipeline is not None
         try:
             # the selected tag first: the verifier judges the other detections after its put
-            pending = pipeline.begin(frame)
+            pending = self._pipeline.begin(frame)
         except _DETECT_ERRORS as err:
             # A detector failing on one (valid) frame must not kill the worker: status and
             # liveliness would still say "alive" while no frame is ever answered again.
@@ -385,7 +358,7 @@ class Stream:
         # counted before any output is out: whoever reads one may ask the status next
         if pending.intrinsics_mismatch:
             self.stats.on_intrinsics_mismatch()
-            self._log_limited(
+            self._log(
                 logging.WARNING,
                 "intrinsics_mismatch",
                 "intrinsics_mismatch",
@@ -393,22 +366,32 @@ class Stream:
                 detail="the CameraInfo in use is for another image size: its intrinsics are "
                 "left out for this frame",
             )
+        return pending
+
+    def _encode_tag(self, pending: Pending) -> bytes:
         try:
-            tag = bytes(self._shared.codec.encode(pending.selected))
+            return bytes(self._shared.codec.encode(pending.selected))
         except _ENCODE_ERRORS as err:
             raise ProcessingError("encode_tag", err) from err
-        self._publish(tag_pub, "tag", tag)
-        published = time.monotonic_ns()
-        # From here on the frame is answered: later failures are counted, not rejections.
+
+    def _finish(self, pending: Pending) -> Analysis | None:
+        """Every detection judged (None: the detector failed, counted)."""
         try:
-            analysis = pending.finish()
+            return pending.finish()
         except _DETECT_ERRORS as err:
             self.processing_failed(ProcessingError("detect", err))
-            return
-        latency_ms = (published - arrival.received_ns) / 1e6
-        decode_ms = (decoded - started) / 1e6
+            return None
+
+    def _record(
+        self,
+        arrival: Arrival,
+        frame: Frame,
+        kind: InputKind,
+        analysis: Analysis,
+        times: _Times,
+    ) -> FrameRecord:
         self._seq += 1
-        record = FrameRecord(
+        return FrameRecord(
             stamp_ns=frame.stamp_ns if frame.stamp_ns is not None else arrival.wall_ns,
             frame_id=frame.frame_id,
             seq=frame.seq if frame.seq is not None else self._seq,
@@ -417,32 +400,36 @@ class Stream:
             selected=analysis.selected,
             tags=analysis.tags,
             timing_ms={
-                "latency_ms": latency_ms,
-                "queue_ms": (started - arrival.received_ns) / 1e6,
-                "decode_ms": decode_ms,
+                "latency_ms": (times.published - arrival.received_ns) / 1e6,
+                "queue_ms": (times.started - arrival.received_ns) / 1e6,
+                "decode_ms": (times.decoded - times.started) / 1e6,
                 "convert_ms": analysis.convert_ms,
                 "detect_ms": analysis.detect_ms,
             },
-            source=source,
-            stream=str(sample.key_expr),
+            source=kind.value,
+            stream=str(arrival.sample.key_expr),
             instance=self._shared.instance,
         )
+
+    def _put_record(self, record: FrameRecord) -> None:
         try:
-            self._publish(record_pub, "record", record.to_msgpack())
-        except _ENCODE_ERRORS as err:
-            self.processing_failed(ProcessingError("encode_record", err))
-        self._publish_ros_outputs(analysis, record.stamp_ns, frame.frame_id)
+            self._outputs.put_record(record)
+        except ProcessingError as err:
+            self.processing_failed(err)
+
+    def _put_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
+        try:
+            self._outputs.put_debug(frame, analysis, stamp_ns, self.intrinsics)
+        except ProcessingError as err:
+            self.processing_failed(err)
+
+    def _count(self, arrival: Arrival, analysis: Analysis, times: _Times) -> None:
+        decode_ms = (times.decoded - times.started) / 1e6
         self.stats.on_processed(
-            latency_ms,
+            (times.published - arrival.received_ns) / 1e6,
             frame_ms=decode_ms + analysis.convert_ms + analysis.detect_ms,
             detect_ms=analysis.detect_ms,
         )
-        self._hint_if_tagless(bool(analysis.tags))
-        if self.debug_watched.is_set():
-            try:
-                self._publish_debug(frame, analysis, record.stamp_ns)
-            except ProcessingError as err:
-                self.processing_failed(err)
 
     def _hint_if_tagless(self, tagged: bool) -> None:
         """Once ``no_tag_hint_s`` of frames all had no tag, say what to check (once, until a
@@ -467,68 +454,41 @@ class Stream:
                 ),
             )
 
-    def _publish_ros_outputs(self, analysis: Analysis, stamp_ns: int, frame_id: str) -> None:
-        """Every detection and the tags' transforms (see service/ros_outputs.py)."""
-        encoded, failed = self._ros_outputs.encode(analysis, stamp_ns=stamp_ns, frame_id=frame_id)
-        for err in failed:
-            self.processing_failed(err)
-        for output in encoded:
-            self._publish(output.publisher, output.name, output.payload)
+    # -- the deadline ---------------------------------------------------------------------------
 
-    def _publish_debug(self, frame: Frame, analysis: Analysis, stamp_ns: int) -> None:
-        """Annotate, encode and publish the debug image (at most ``debug_image_max_hz``).
-
-        Raises:
-            ProcessingError: drawing or encoding failed (stage ``debug_image``).
-
-        """
-        now = time.monotonic()
-        s = self._shared.settings
-        if self._debug_pub is None or now - self._last_debug < 1.0 / s.debug_image_max_hz:
-            return
-        self._last_debug = now
-        try:
-            image = annotate(
-                to_bgr(frame),
-                analysis.tags,
-                analysis.selected,
-                intrinsics=self.intrinsics,
-                tag_size=s.tag_size_for,
-            )
-            payload = bytes(
-                encode_compressed_image(
-                    image,
-                    quality=s.debug_jpeg_quality,
-                    stamp_ns=stamp_ns,
-                    frame_id=frame.frame_id,
-                )
-            )
-        except _DEBUG_ERRORS as err:
-            raise ProcessingError("debug_image", err) from err
-        if self._publish(self._debug_pub, "debug_image", payload):
-            self.debug_images += 1
-
-    def _publish(self, publisher: TopicPublisher, output: str, payload: bytes) -> bool:
-        """Put ``payload``; a failure is counted by ``output`` and logged (rate-limited)."""
-        try:
-            publisher.put(payload)
-        except zenoh.ZError as err:
-            self.stats.on_publish_error(output)
-            self._log_limited(
-                logging.WARNING,
-                f"publish:{output}",
-                "publish_failed",
-                output=output,
-                error=zenoh_error_text(err),
-            )
-            return False
-        return True
+    def check_deadline(self) -> Stall | None:
+        """Abandon the guarded read in flight when it has run past the deadline (counted: a
+        rejection, or a processing error when the frame's tag was out already); the worker
+        left inside it, or None."""
+        guard = self.guard
+        assert guard is not None
+        elapsed_ms = guard.check()
+        if elapsed_ms is None:
+            return None
+        err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
+        self.stats.on_abandoned(elapsed_ms)
+        if guard.abandoned_answered:
+            # the second look after the frame's tag: answered, its record lost
+            self.processing_failed(ProcessingError("second_look", err))
+        else:
+            self.reject(err.reason, err)
+        return Stall(self._worker)
 
     # -- counting and logging -----------------------------------------------------------------
 
+    def _publish_failed(self, output: str, err: zenoh.ZError) -> None:
+        self.stats.on_publish_error(output)
+        self._log(
+            logging.WARNING,
+            f"publish:{output}",
+            "publish_failed",
+            output=output,
+            error=zenoh_error_text(err),
+        )
+
     def processing_failed(self, err: ProcessingError) -> None:
         self.stats.on_processing_error(err.stage)
-        self._log_limited(
+        self._log(
             logging.WARNING,
             f"processing:{err.stage}",
             "processing_error",
@@ -538,22 +498,13 @@ class Stream:
 
     def reject(self, reason: str, err: Exception) -> None:
         self.stats.on_rejected(reason)
-        suppressed = self._shared.gate.admit(reason)
-        if suppressed is not None:
-            fields = kv(**self._named(), reason=reason, suppressed=suppressed, detail=err)
-            log.warning("event=rejected %s", fields)
-
-    def _log_limited(self, level: int, key: str, event: str, **fields: object) -> None:
-        suppressed = self._shared.gate.admit(key)
-        if suppressed is not None:
-            log.log(
-                level, "event=%s %s", event, kv(**self._named(), **fields, suppressed=suppressed)
-            )
+        self._log(logging.WARNING, reason, "rejected", reason=reason, detail=err)
 
     def _named(self) -> dict[str, str]:
         """The fields naming the stream in its log lines, its name as the README gives it and
-        its key (none with a single stream)."""
-        return {"name": self.name, "stream": self.key} if self._shared.named else {}
+        its input key (none with a single stream)."""
+        fields = self._shared.naming.fields(self.input_key)
+        return {"name": self.name, **fields} if fields else {}
 
     # -- observability ----------------------------------------------------------------------
 
@@ -563,11 +514,14 @@ class Stream:
         intrinsics = self.intrinsics
         snapshot["camera_info"]["intrinsics"] = None if intrinsics is None else asdict(intrinsics)
         return {
-            "stream": self.key,
+            "stream": self.input_key,
             "name": self.name,
             "tag_key": self.tag_key,
             "idle_s": round((time.monotonic_ns() - self.last_ns) / 1e9, 3),
             **snapshot,
             "vetoed_by_reason": self.vetoed,
-            "debug_image": {"watched": self.debug_watched.is_set(), "published": self.debug_images},
+            "debug_image": {
+                "watched": self._outputs.debug_watched.is_set(),
+                "published": self._outputs.debug_images,
+            },
         }

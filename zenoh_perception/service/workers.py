@@ -1,17 +1,12 @@
-"""The service's worker threads, which answer the streams' frames, and its watchdog, which
-abandons a detection past ``frame_deadline_ms`` and starts a worker in its place.
+"""The service's worker threads, which answer the streams' frames.
 
 Each worker takes the stream whose newest frame has waited longest, one worker per stream at
 a time (:mod:`~zenoh_perception.service.mailbox`), and answers that frame
 (:meth:`~zenoh_perception.service.stream.Stream.handle`).
 
-With ``frame_deadline_ms`` a frame the detector does not finish in time is abandoned (a
-rejection, counted with its time) and the stream's newest frame read next by a fresh
-detector. By default (``detector_process = "on_stall"``) detection runs in the worker and the
-watchdog abandons a read past the deadline, leaves that worker to end on its own and starts
-another (:mod:`~zenoh_perception.service.guard`); for a while after, the stream's frames go to
-a child process that is killed on a stall (:mod:`~zenoh_perception.service.watchdog`), as
-every frame does with ``"always"``.
+With ``frame_deadline_ms`` the watchdog (:mod:`~zenoh_perception.service.watchdog`) may
+abandon a worker inside a stalled read: :meth:`Workers.replace` starts another in its place
+and the stuck one ends on its own.
 """
 
 from __future__ import annotations
@@ -24,21 +19,16 @@ from typing import Final
 
 import zenoh
 
-from zenoh_perception.errors import (
-    FrameAbandonedError,
-    ProcessingError,
-    SessionError,
-    zenoh_error_text,
-)
+from zenoh_perception.errors import SessionError, zenoh_error_text
 from zenoh_perception.service.guard import StaleDetection
 from zenoh_perception.service.mailbox import Scheduler
 from zenoh_perception.service.stream import Arrival, Stream
 
-# the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 #: Rejection reason of a frame whose stream's outputs Zenoh refused to declare.
 STREAM_REFUSED: Final = "stream_refused"
+#: How long a worker waits for a frame before it looks at ``stop`` again, seconds.
 _POLL_S = 0.1
 
 
@@ -51,10 +41,10 @@ def usable_cpus() -> set[int]:
 
 
 class Workers:
-    """The worker threads of one service, and the watchdog's loop (:meth:`watch`).
+    """The worker threads of one service.
 
-    A worker that dies of anything unforeseen sets ``failed``; every loop ends once ``stop``
-    is set. ``guarded`` lists the streams whose detection a deadline guards.
+    A worker that dies of anything unforeseen sets ``failed``; every worker ends once ``stop``
+    is set.
     """
 
     def __init__(
@@ -62,14 +52,12 @@ class Workers:
         scheduler: Scheduler[Stream, Arrival],
         stop: threading.Event,
         failed: threading.Event,
-        guarded: Callable[[], list[Stream]],
         *,
         pulse: Callable[[], None] = lambda: None,
     ) -> None:
         self._scheduler = scheduler
         self._stop = stop
         self._failed = failed
-        self._guarded = guarded
         #: Called on every turn of every worker's loop (a share group's heartbeat: it stops
         #: when the workers stop).
         self._pulse = pulse
@@ -83,6 +71,12 @@ class Workers:
         # only the current workers and the abandoned ones still running are kept
         self._workers = [w for w in self._workers if w.is_alive()] + [worker]
         worker.start()
+
+    def replace(self, stuck: int | None) -> None:
+        """Start a worker in place of ``stuck`` (a thread id), left inside a read the
+        watchdog abandoned: it ends on its own."""
+        self._abandoned.add(stuck)
+        self.start_one()
 
     def running(self, stuck: set[int | None]) -> list[threading.Thread]:
         """The workers alive now, but those in ``stuck`` or abandoned before (each ends on its
@@ -101,7 +95,6 @@ class Workers:
                     continue
                 lane, arrival = taken
                 stream = lane.owner
-                stream.worker = threading.get_ident()
                 try:
                     stream.handle(arrival)
                 except zenoh.ZError as err:  # the stream's outputs could not be declared
@@ -118,29 +111,3 @@ class Workers:
                 # a liveliness token that claims a service that answers nothing.
                 log.error("event=worker_died")
                 self._failed.set()
-
-    def watch(self) -> None:
-        """Abandon an in-process detection past the deadline, and start another worker."""
-        wait = _POLL_S
-        while not self._stop.wait(wait):
-            guarded = self._guarded()
-            wait = _POLL_S
-            for stream in guarded:
-                guard = stream.guard
-                assert guard is not None
-                elapsed_ms = guard.check()
-                if elapsed_ms is None:
-                    wait = min(wait, guard.poll_s())
-                    continue
-                err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
-                stream.stats.on_abandoned(elapsed_ms)
-                if guard.abandoned_answered:
-                    # the second look after the frame's tag: answered, its record lost
-                    stream.processing_failed(ProcessingError("second_look", err))
-                else:
-                    stream.reject(err.reason, err)
-                self._abandoned.add(stream.worker)
-                self.start_one()
-                # the stuck worker ends on its own: the stream is free for the next frame
-                if self._scheduler.done(stream.lane):
-                    stream.close()

@@ -52,7 +52,8 @@ def tag_center(corners: Corners) -> tuple[float, float]:
     if len(pts) != 4:
         msg = f"expected 4 corners, got {len(pts)}"
         raise ValueError(msg)
-    return sum(p[0] for p in pts) / 4.0, sum(p[1] for p in pts) / 4.0
+    xs, ys = zip(*pts, strict=True)
+    return sum(xs) / 4.0, sum(ys) / 4.0
 
 
 def polygon_area(corners: Corners) -> float:
@@ -67,7 +68,7 @@ def polygon_area(corners: Corners) -> float:
 def mean_side(corners: Corners) -> float:
     """Mean length of the four sides of the corner polygon, in pixels."""
     pts = _points(corners)
-    return sum(math.dist(p, q) for p, q in zip(pts, pts[1:] + pts[:1], strict=True)) / len(pts)
+    return sum(map(math.dist, pts, pts[1:] + pts[:1])) / len(pts)
 
 
 def clamp_unit(value: float) -> float:

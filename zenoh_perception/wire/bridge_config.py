@@ -32,7 +32,7 @@ from zenoh_perception.wire.stream_keys import (
     StreamNames,
     has_wildcard,
     key_entries,
-    stream_key,
+    output_key,
 )
 
 #: The settings whose keys name the cameras (their wildcards or list entries name streams).
@@ -146,7 +146,7 @@ def _topic_keys(value: Keys, names: tuple[str, ...]) -> list[str]:
     keys: list[str] = []
     for entry in key_entries(value):
         if STREAM in entry:
-            keys += [stream_key(entry, name) for name in names]
+            keys += [output_key(entry, name) for name in names]
         else:
             keys.append(entry)
     return _unique(keys)

@@ -72,7 +72,7 @@ def stream_name(pattern: str, key: str) -> str | None:
     return None if matched is None else "/".join(matched)
 
 
-def stream_key(template: str, name: str) -> str:
+def output_key(template: str, name: str) -> str:
     """``template`` with :data:`STREAM` replaced by ``name``; chunks left empty (the stream
     ``""``, or ``**`` that matched no chunk) are dropped, so the key stays valid."""
     if STREAM not in template:

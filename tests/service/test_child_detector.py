@@ -1,4 +1,4 @@
-"""service/watchdog.py: a detector in a child process, each read bounded by a deadline."""
+"""service/child_detector.py: a detector in a child process, each read bounded by a deadline."""
 
 from __future__ import annotations
 
@@ -17,17 +17,17 @@ import pytest
 
 from tools.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError, ProcessingError
 from zenoh_perception.pipeline import TagFinder
-from zenoh_perception.service.watchdog import IsolatedDetector
+from zenoh_perception.service.child_detector import IsolatedDetector
 from zenoh_perception.wire.frames import ENCODINGS, Frame, to_gray
 
 #: A pixel value that makes the test detectors misbehave; any other image reads normally.
 _STALL, _CRASH, _FAIL = 1, 2, 3
 
 
-class _Misbehaving:
+class _Misbehaving(Detector):
     """OpenCV's detector, except on an image whose first pixel says to stall, crash or fail."""
 
     def __init__(self) -> None:
