@@ -92,6 +92,7 @@ from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.session import (
     CONNECT_WARNING_S,
     check_transport_limit,
+    close_within,
     connect_endpoints,
     open_session,
     session_endpoints,
@@ -479,17 +480,20 @@ def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
     if session is None:
         return 0
     endpoints, described = connect_endpoints(conf), session_endpoints(conf)
-    with session, PerceptionService(session, settings, endpoints=described) as service:
-        # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives as
-        # long as the process: out of the collector's way. A full collection that scanned it
-        # would delay the frame in progress, at a high frame rate long enough for the next
-        # frame to replace a waiting one (a drop).
-        gc.freeze()
-        check_at = time.monotonic() + CONNECT_WARNING_S if endpoints else math.inf
-        while not stop.wait(0.5):
-            if service.failed.is_set():
-                return 1
-            if time.monotonic() >= check_at:
-                check_at = math.inf
-                warn_if_unlinked(session, endpoints)
-    return 0
+    try:
+        with PerceptionService(session, settings, endpoints=described) as service:
+            # What start-up made (modules, the OpenCV and Zenoh bindings, the pipeline) lives
+            # as long as the process: out of the collector's way. A full collection that
+            # scanned it would delay the frame in progress, at a high frame rate long enough
+            # for the next frame to replace a waiting one (a drop).
+            gc.freeze()
+            check_at = time.monotonic() + CONNECT_WARNING_S if endpoints else math.inf
+            while not stop.wait(0.5):
+                if service.failed.is_set():
+                    return 1
+                if time.monotonic() >= check_at:
+                    check_at = math.inf
+                    warn_if_unlinked(session, endpoints)
+        return 0
+    finally:
+        close_within(session)
