@@ -146,13 +146,15 @@ def sigterm_exit(proc: subprocess.Popen[str], timeout: float = 10.0) -> tuple[in
 
 
 @contextmanager
-def running_cli(*args: str, stop_timeout: float = 30.0) -> Iterator[subprocess.Popen[str]]:
-    """Start the real CLI as a subprocess; SIGINT and reap it on exit (kill if it hangs: a
-    test that checks the exit code after the block then sees -9)."""
+def running_cli(
+    *args: str, stop_timeout: float = 30.0, cwd: Path = REPO
+) -> Iterator[subprocess.Popen[str]]:
+    """Start the real CLI as a subprocess in ``cwd``; SIGINT and reap it on exit (kill if it
+    hangs: a test that checks the exit code after the block then sees -9)."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         cli_command(*args),
-        cwd=REPO,
+        cwd=cwd,
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

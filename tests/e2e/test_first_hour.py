@@ -11,7 +11,6 @@ is the README's camera line with ``front`` replaced by ``rear``.
 from __future__ import annotations
 
 import json
-import os
 import re
 import shlex
 import signal
@@ -31,6 +30,7 @@ from tests.helpers import (
     cli_command,
     loopback_endpoint,
     parse_pairs,
+    running_cli,
     wait_until,
 )
 
@@ -84,28 +84,9 @@ def cameras(tmp_path: Path) -> Path:
 
 @contextmanager
 def started(argv: Sequence[str], cwd: Path) -> Iterator[tuple[subprocess.Popen[str], OutputLines]]:
-    """The real CLI running ``argv`` in ``cwd``; SIGINT and reaped at the end."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        cli_command(*argv),
-        cwd=cwd,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
+    """The real CLI running ``argv`` in ``cwd``, with its output lines to wait on."""
+    with running_cli(*argv, cwd=cwd) as proc:
         yield proc, OutputLines(proc)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stdout is not None:
-            proc.stdout.close()
 
 
 def run(argv: Sequence[str], cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
