@@ -137,4 +137,3 @@ def close_within(session: zenoh.Session, timeout_s: float = CLOSE_WAIT_S) -> boo
         log.warning("event=session_close_slow %s", kv(waited_s=timeout_s))
         return False
     return True
-
