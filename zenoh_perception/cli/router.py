@@ -17,6 +17,7 @@ from typing import Final, TextIO
 
 import zenoh
 
+from zenoh_perception.service.session import close_within
 from zenoh_perception.service.zenoh_args import open_zenoh
 
 #: What the router sets beside Zenoh's defaults when no ``-c`` file is given.
@@ -52,7 +53,8 @@ def main(conf: zenoh.Config, stop: threading.Event, out: TextIO) -> int:
             parse), in one line.
 
     """
-    with open_zenoh(conf) as session:
+    session = open_zenoh(conf)
+    try:
         listening = ", ".join(locators(session)) or conf.get_json("listen/endpoints")
         connecting = conf.get_json("connect/endpoints")
         print(f"router zid={session.zid()} listening on {listening}", file=out)
@@ -60,4 +62,8 @@ def main(conf: zenoh.Config, stop: threading.Event, out: TextIO) -> int:
             print(f"router connecting to {connecting}", file=out)
         print("router running until Ctrl-C (SIGINT) or SIGTERM", file=out, flush=True)
         stop.wait()
+    finally:
+        # bounded: a router stopped by a supervisor exits promptly even while Zenoh's close
+        # lingers over its links (the process's exit closes them anyway)
+        close_within(session)
     return 0
