@@ -22,6 +22,10 @@ How a grid is told (on the frame at half size, in 16 px cells there):
 :class:`GridKeeper` runs this only while it pays: on the frame after a read that took long
 for the frame's size, and for a few reads after the last grid found (a plain frame amid
 boards, a board out of view for a moment); plain frames otherwise cost one clock reading.
+A read's time is the CPU time of the thread that read (OpenCV's own threads share the work
+with it, so on an idle machine it is about the read's wall time): a busy machine, which
+stretches every read's wall time, does not arm it, and the same frames are painted however
+loaded the machine.
 """
 
 from __future__ import annotations
@@ -60,7 +64,8 @@ _HOLE_MARGIN = 0.2
 _NET_SQUARES = 30
 #: The part of a 3x3 neighbourhood large shapes may cover.
 _MAX_LARGE_COVER = 0.02
-#: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper.
+#: A whole-frame read costing more than this many nanoseconds a pixel (the reading thread's
+#: CPU time) arms the keeper.
 _EXPENSIVE_NS_PER_PIXEL = 40.0
 _EXPENSIVE_FLOOR_S = 0.015
 #: Reads the keeper stays armed for after the last one that found a grid: a board seen on
@@ -294,9 +299,9 @@ class GridKeeper:
     """Whether to look for grids before a whole-frame read, the frame to read, and which of
     the markers read there to keep.
 
-    Armed for the read after one that cost more than about 40 ns a pixel (15 ms at least),
-    and for ``_HOLD_READS`` reads after the last frame with a grid; then a quick read
-    disarms it.
+    Armed for the read after one that cost more than about 40 ns a pixel (15 ms at least) of
+    the reading thread's CPU time, and for ``_HOLD_READS`` reads after the last frame with a
+    grid; then a quick read disarms it.
 
     ``armed``: look for grids from the first read (a detector that replaces one whose read
     stalled: the frames that stalled it are likely to come again).
@@ -330,12 +335,13 @@ class GridKeeper:
         return self._mask is None or not on_painted(corners, self._mask)
 
     def record(self, seconds: float, pixels: int) -> None:
-        """After the read of a frame of ``pixels`` that took ``seconds``."""
+        """After the read of a frame of ``pixels`` that took ``seconds`` of the reading
+        thread's CPU time."""
         budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
         if self._mask is not None:
             self._hold = _HOLD_READS  # grids in view: they may well come back
         elif seconds > budget:
-            # a look on the next frame; a slow read without grids (a busy machine) costs one
+            # a look on the next frame; a slow read without grids costs one
             self._hold = max(self._hold, 1)
         elif self._hold > 0:
             self._hold -= 1

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
-from time import perf_counter
+from time import thread_time
 from typing import Any
 
 import cv2
@@ -149,10 +149,11 @@ class OpenCvDetector(Detector):
         second look, when there is one, may read again."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
         image = self.grids.prepare(gray)
-        # OpenCV's read alone: the finder's own time must not keep it armed
-        start = perf_counter()
+        # OpenCV's read alone, in this thread's CPU time: the finder's own time must not keep
+        # it armed, nor a busy machine's waits (see detect/grids.py)
+        start = thread_time()
         found = self._detect(image, (0, 0))
-        self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
+        self.grids.record(thread_time() - start, gray.shape[0] * gray.shape[1])
         found = [d for d in found if self.grids.keep(d.corners)]
         self._later = None
         look = self.second_look
