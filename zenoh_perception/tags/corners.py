@@ -101,6 +101,20 @@ def refine_corners(
     return np.where(refined[:, None], current, given), refined
 
 
+def median(values: npt.NDArray[np.floating]) -> float:
+    """``float(np.median(values))`` of a float array, to the bit, without ``np.median``'s
+    overhead (its dispatch and mean cost ten times the partition on a hundred values)."""
+    flat = values.reshape(-1)
+    half = flat.size // 2
+    if flat.size % 2:
+        part = np.partition(flat, (half, -1))
+        middle = part[half]
+    else:
+        part = np.partition(flat, (half - 1, half, -1))
+        middle = (part[half - 1] + part[half]) / 2  # in the array's own precision, as np.mean
+    return math.nan if np.isnan(part[-1]) else float(middle)
+
+
 def _fit_pass(
     gray: npt.NDArray[np.uint8],
     quad: npt.NDArray[np.float64],
@@ -137,7 +151,7 @@ def _fit_pass(
     weights = steps.sum(2)
     # a sample whose step is weaker than half the typical one missed the edge (its reach
     # fell short of it, or something covers it): noise alone would pull the line to it
-    usable = weights > _WEAK_STEP * float(np.median(weights))
+    usable = weights > _WEAK_STEP * median(weights)
     kept = usable.sum(1)
     if kept.min() < 2:
         return None
