@@ -110,12 +110,16 @@ def test_cells_across_a_marker_of_each_dictionary(dictionary: str, cells: int) -
         assert cells == bits + 2
 
 
+_SHAPES = hnp.array_shapes(min_dims=1, max_dims=3, max_side=30)
+
+
 @given(
     hnp.arrays(
         st.sampled_from([np.float32, np.float64]),
-        hnp.array_shapes(min_dims=1, max_dims=3, max_side=30),
+        _SHAPES,
         elements=st.floats(-1e6, 1e6, width=32) | st.just(float("nan")),
     )
+    | hnp.arrays(np.int32, _SHAPES, elements=st.integers(-(10**6), 10**6))
 )
 def test_median_is_numpy_s_to_the_bit(values: np.ndarray) -> None:
     expected = float(np.median(values))

@@ -101,10 +101,12 @@ def refine_corners(
     return np.where(refined[:, None], current, given), refined
 
 
-def median(values: npt.NDArray[np.floating]) -> float:
-    """``float(np.median(values))`` of a float array, to the bit, without ``np.median``'s
-    overhead (its dispatch and mean cost ten times the partition on a hundred values)."""
+def median(values: npt.NDArray[np.generic]) -> float:
+    """``float(np.median(values))``, to the bit, without ``np.median``'s overhead (its
+    dispatch and mean cost ten times the partition on a hundred values)."""
     flat = values.reshape(-1)
+    if flat.dtype.kind != "f":
+        flat = flat.astype(np.float64)  # np.median averages whole numbers in float64
     half = flat.size // 2
     if flat.size % 2:
         part = np.partition(flat, (half, -1))
