@@ -48,7 +48,7 @@ from zenoh_perception.errors import PerceptionError, SettingsError
 from zenoh_perception.files import read_text_file
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.image_header import image_header_size
-from zenoh_perception_bench.e2e import lockstep_images, record_detections
+from zenoh_perception_bench.e2e import LOCKSTEP_DEADLINE_MS, lockstep_images, record_detections
 from zenoh_perception_bench.goals import LABELS_WRONG, dataset_goals
 from zenoh_perception_bench.plot import plot_dataset
 from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR, sigterm_exits
@@ -615,7 +615,9 @@ def _end_to_end(
         f"e2e {item.name}",
         dictionary=item.dictionary,
         shm=shm,
-        flags=flags,
+        # the lockstep waits for every frame's answer: a busy machine's default deadline would
+        # abandon frames that are merely slow, as in the generated benches
+        flags=("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS), *flags),
     )
     out: dict[str, Any] = {"camera": run.camera}
     bare = np.asarray(run.bare_ms, dtype=np.float64)
