@@ -120,6 +120,24 @@ def test_no_module_is_too_long(path: Path) -> None:
         assert lines <= MAX_LINES, f"{name} is {lines} lines, more than {MAX_LINES}"
 
 
+@pytest.mark.parametrize("path", MODULES, ids=lambda p: str(p.relative_to(REPO)))
+def test_each_module_logs_under_its_own_name(path: Path) -> None:
+    """A log line's logger= names the module that wrote it."""
+    module = _module_name(path)
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "getLogger"
+            and node.args
+        ):
+            name = node.args[0]
+            named = isinstance(name, ast.Name) and name.id == "__name__"
+            assert named or (isinstance(name, ast.Constant) and name.value == module), (
+                f"{module} logs as {ast.unparse(name)}"
+            )
+
+
 def test_layer_check_catches_an_upward_import() -> None:
     assert _layer("zenoh_perception.service.node") > _layer("zenoh_perception.wire.frames")
     assert _layer("zenoh_perception.detect.opencv") < _layer("zenoh_perception.settings")
