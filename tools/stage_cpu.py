@@ -34,6 +34,7 @@ import zenoh_perception.wire.records as records_module
 from zenoh_perception.service.guard import GuardedDetector
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import decode_raw_frame
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception_bench.overhead import frames_at
 from zenoh_perception_bench.processes import raw_frame
 
@@ -106,9 +107,7 @@ def _measure(frames: int, passes: int, seed: int, stages: dict[str, int]) -> dic
             selected=analysis.selected,
             tags=analysis.tags,
             timing_ms={"detect_ms": analysis.detect_ms},
-            source="raw",
-            stream="",
-            instance="",
+            source=InputKind.RAW,
         ).to_msgpack()
         steps["decode"] += decoded - start
         steps["to tag"] += tagged - decoded
