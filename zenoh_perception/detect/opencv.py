@@ -3,7 +3,7 @@ detector of this package is held to."""
 
 from __future__ import annotations
 
-from time import thread_time
+from time import perf_counter
 from typing import Any
 
 import cv2
@@ -136,11 +136,12 @@ class OpenCvDetector(Detector):
         second look, when there is one, may read again."""
         self._set_min_perimeter(max(gray.shape[:2]), min_perimeter_px)
         image = self.grids.prepare(gray)
-        # OpenCV's read alone, in this thread's CPU time: the finder's own time must not keep
-        # it armed, nor a busy machine's waits (see detect/grids.py)
-        start = thread_time()
+        # OpenCV's read alone: the finder's own time must not keep it armed
+        start = perf_counter()
         found = self._detect(image, (0, 0))
-        self.grids.record(thread_time() - start, gray.shape[0] * gray.shape[1])
+        seconds = perf_counter() - start
+        candidates = len(found) + len(self._rejected)
+        self.grids.record(seconds, gray.shape[0] * gray.shape[1], candidates)
         found = [d for d in found if self.grids.keep(d.corners)]
         self._later = None
         look = self.second_look
