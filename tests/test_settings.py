@@ -3,24 +3,36 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import tomllib
+from collections import Counter
+from dataclasses import fields
+from enum import Enum
 from pathlib import Path
 
 import pytest
 
 from tests.helpers import REPO
+from zenoh_perception.cli import main as cli
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.service.zenoh_args import add_zenoh_arguments
 from zenoh_perception.settings import (
     BOUNDS,
     FLAT,
     MAX_SETTINGS_FILE_BYTES,
+    SECTIONS,
+    DetectorKind,
+    DetectorProcess,
+    Metric,
+    Policy,
+    RosTransportKind,
     Settings,
     add_settings_arguments,
     check_ros_package,
     load_settings,
+    setting_names,
     settings_from_args,
     settings_from_mapping,
 )
@@ -659,3 +671,165 @@ def test_a_list_of_more_cameras_than_max_streams_is_refused() -> None:
     assert settings_from_mapping({**values, "max_streams": 3}).inputs.several
     with pytest.raises(SettingsError, match="input_key lists 3 keys, more than max_streams = 2"):
         settings_from_mapping({**values, "max_streams": 2})
+
+
+# -- sections and modes ---------------------------------------------------------------------
+
+MODES = {
+    "detector": DetectorKind,
+    "detector_process": DetectorProcess,
+    "ros_transport": RosTransportKind,
+    "policy": Policy,
+    "metric": Metric,
+}
+_INTRINSICS = {"camera_fx": 500.0, "camera_fy": 500.0, "camera_cx": 319.5, "camera_cy": 239.5}
+#: A value other than the default for every key: (as written in the file, as kept, what it
+#: needs beside it).
+OTHER_VALUES: dict[str, tuple[object, object, dict[str, object]]] = {
+    "input_key": ("cam/image", "cam/image", {}),
+    "compressed_input_key": ("cam/compressed", "cam/compressed", {}),
+    "camera_info_key": ("zed/left/camera_info", "zed/left/camera_info", {}),
+    "max_streams": (8, 8, {}),
+    "stream_idle_s": (30.0, 30.0, {}),
+    "tag_key": ("out/tag", "out/tag", {}),
+    "record_key": ("out/tags", "out/tags", {}),
+    "debug_image_key": ("out/debug", "out/debug", {}),
+    "detections_key": ("", "", {}),
+    "tf_key": ("out/tf", "out/tf", {}),
+    "tf_prefix": ("marker_", "marker_", {}),
+    "status_key": ("out/status", "out/status", {}),
+    "liveliness_key": ("out/alive", "out/alive", {}),
+    "share_group": ("rover", "rover", {}),
+    "ros_package": ("rover_msgs", "rover_msgs", {}),
+    "ros_transport": ("rmw_zenoh", RosTransportKind.RMW_ZENOH, {}),
+    "bridge_announce": (False, False, {}),
+    "ros_domain_id": (7, 7, {}),
+    "ros_node_name": ("perception", "perception", {}),
+    "ros_namespace": ("/rover", "/rover", {}),
+    "dictionary": ("DICT_5X5_100", "DICT_5X5_100", {}),
+    "detector": ("tracking", DetectorKind.TRACKING, {}),
+    "full_scan_period": (8, 8, {}),
+    "second_look": (False, False, {}),
+    "opencv_threads": (1, 1, {}),
+    "min_tag_side_px": (12.5, 12.5, {}),
+    "verify": (False, False, {}),
+    "confirm_frames": (2, 2, {}),
+    "refine_corners": (False, False, {}),
+    "max_frame_bytes": (1 << 20, 1 << 20, {}),
+    "max_frame_pixels": (1920 * 1080, 1920 * 1080, {}),
+    "frame_budget_ms": (50.5, 50.5, {}),
+    "frame_deadline_ms": (0.0, 0.0, {}),
+    "detector_process": ("always", DetectorProcess.ALWAYS, {}),
+    "workers": (2, 2, {}),
+    "policy": ("center", Policy.CENTER, {}),
+    "metric": ("distance", Metric.DISTANCE, {**_INTRINSICS, "tag_size_m": 0.2}),
+    "max_range_m": (5.5, 5.5, {}),
+    "tag_size_m": (0.2, 0.2, {}),
+    "tag_sizes": ({"3": 0.25}, ((3, 0.25),), {}),
+    "camera_fx": (500.0, 500.0, {k: v for k, v in _INTRINSICS.items() if k != "camera_fx"}),
+    "camera_fy": (500.0, 500.0, {k: v for k, v in _INTRINSICS.items() if k != "camera_fy"}),
+    "camera_cx": (100.5, 100.5, {}),
+    "camera_cy": (100.5, 100.5, {}),
+    "debug_image": (False, False, {}),
+    "debug_image_max_hz": (2.5, 2.5, {}),
+    "debug_jpeg_quality": (50, 50, {}),
+    "stats_interval_s": (0.0, 0.0, {}),
+    "log_interval_s": (1.5, 1.5, {}),
+    "no_tag_hint_s": (0.0, 0.0, {}),
+}
+
+
+def test_every_flat_key_is_a_field_of_exactly_one_section() -> None:
+    owners = Counter(f.name for cls in SECTIONS.values() for f in fields(cls))
+    assert set(owners) == set(FLAT) == set(setting_names())
+    assert set(owners.values()) == {1}
+    assert [f.name for f in fields(Settings)] == list(SECTIONS)
+    for name, key in FLAT.items():
+        assert name in {f.name for f in fields(SECTIONS[key.section])}
+        assert isinstance(getattr(Settings(), key.section), SECTIONS[key.section])
+
+
+def _toml(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {v!r}" for k, v in value.items()) + " }"
+    return json.dumps(value) if isinstance(value, str) else repr(value)
+
+
+def _flag(name: str, value: object) -> list[str]:
+    flag = "--" + name.replace("_", "-")
+    if isinstance(value, bool):
+        return [flag if value else "--no-" + flag[2:]]
+    if isinstance(value, dict):
+        return [flag, ",".join(f"{k}={v}" for k, v in value.items())]
+    return [flag, str(value)]
+
+
+def _kept(settings: Settings, name: str) -> object:
+    return getattr(getattr(settings, FLAT[name].section), name)
+
+
+def test_every_key_has_another_value_here() -> None:
+    assert set(OTHER_VALUES) == set(FLAT)
+    for name, (_written, kept, _beside) in OTHER_VALUES.items():
+        assert kept != FLAT[name].field.default, name
+
+
+@pytest.mark.parametrize("name", list(OTHER_VALUES))
+def test_each_key_round_trips_from_the_file_and_from_its_flag(name: str, tmp_path: Path) -> None:
+    written, kept, beside = OTHER_VALUES[name]
+    path = tmp_path / "s.toml"
+    path.write_text("".join(f"{k} = {_toml(v)}\n" for k, v in {name: written, **beside}.items()))
+    from_file = load_settings(path)
+    argv = [arg for k, v in {name: written, **beside}.items() for arg in _flag(k, v)]
+    from_flag = settings_from_args(_parse(*argv))
+    for settings in (from_file, from_flag):
+        assert _kept(settings, name) == kept
+        assert type(_kept(settings, name)) is type(kept)
+        # the status reply shows it as the file writes it
+        shown = json.loads(json.dumps(settings.as_dict()))[name]
+        assert shown == (written if not isinstance(written, tuple) else list(written))
+    assert from_file == from_flag == Settings.from_flat(**{name: written, **beside})
+
+
+def test_the_modes_are_the_enums_of_their_keys() -> None:
+    assert {n: k.kind for n, k in FLAT.items() if issubclass(k.kind, Enum)} == MODES
+
+
+@pytest.mark.parametrize(("name", "mode"), list(MODES.items()))
+def test_a_mode_reads_each_documented_text(name: str, mode: type[Enum]) -> None:
+    lines = CONFIG.read_text().splitlines()
+    index = next(i for i, line in enumerate(lines) if line.startswith(f"{name} ="))
+    documented = " ".join(lines[max(0, index - 12) : index + 1])
+    for member in mode:
+        assert f"{member.value}" in documented, (name, member)
+        for settings in (
+            Settings.from_flat(**{name: member.value, **OTHER_VALUES[name][2]}),
+            settings_from_args(_parse(*_flag(name, member.value), *_beside(name))),
+        ):
+            assert _kept(settings, name) is member
+            assert f"{_kept(settings, name)}" == member.value  # logs and status as written
+
+
+def _beside(name: str) -> list[str]:
+    return [arg for k, v in OTHER_VALUES[name][2].items() for arg in _flag(k, v)]
+
+
+@pytest.mark.parametrize(("name", "mode"), list(MODES.items()))
+@pytest.mark.parametrize("text", ["bogus", "", "OPENCV", "Closest", " area"])
+def test_a_mode_refuses_any_other_text_naming_the_setting(
+    name: str, mode: type[Enum], text: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    choices = ", ".join(m.value for m in mode)
+    expected = f"{name} must be one of {choices}, not {text!r}"
+    with pytest.raises(SettingsError) as refused:
+        Settings.from_flat(**{name: text})
+    assert str(refused.value) == f"settings: {expected}"
+    with pytest.raises(SettingsError, match=re.escape(f"flags: {expected}")):
+        settings_from_args(_parse(*_flag(name, text)))
+    with pytest.raises(SettingsError, match=re.escape(f"setting {name} must be str, not 5")):
+        Settings.from_flat(**{name: 5})
+    assert cli.main(["run", *_flag(name, text), "--no-multicast-scouting"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == f"zenoh-perception: error: flags: {expected}"

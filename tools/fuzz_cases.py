@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 
 from zenoh_perception.errors import FrameDecodeError
-from zenoh_perception.settings import Limits
+from zenoh_perception.settings.sections import Limits
 from zenoh_perception.wire.frames import (
     MAX_ATTACHMENT_BYTES,
     MAX_DIMENSION,

@@ -14,7 +14,7 @@ from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import REASONS, Verifier
-from zenoh_perception.settings import DetectorSettings, Selection
+from zenoh_perception.settings.sections import DetectorSettings, Selection
 from zenoh_perception.tags.corners import marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (
     closeness_from_area,

@@ -27,7 +27,8 @@ from zenoh_perception.detect.opencv import aruco_dictionary, detections_from_ope
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import TagFinder
-from zenoh_perception.settings import DetectorSettings, Settings
+from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import DetectorSettings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception_bench.framesets import BoardFrame
 from zenoh_perception_bench.progress import Progress, tick

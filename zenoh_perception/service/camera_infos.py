@@ -20,7 +20,7 @@ from zenoh_perception.service.inputs import StreamNaming
 from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.stream import CameraInfo, Stream
-from zenoh_perception.settings import Inputs
+from zenoh_perception.settings.sections import Inputs
 from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
 
 log = logging.getLogger(__name__)

@@ -67,7 +67,8 @@ from zenoh_perception.errors import (
 from zenoh_perception.service.logs import kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.service.threads import guarded_thread
-from zenoh_perception.settings import Inputs, Ros, RosTransportKind, Settings
+from zenoh_perception.settings import RosTransportKind, Settings
+from zenoh_perception.settings.sections import Inputs, Ros
 from zenoh_perception.sharing import (
     GROUP_SETTINGS,
     MAX_ANNOUNCED,

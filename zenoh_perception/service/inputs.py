@@ -12,7 +12,7 @@ import zenoh
 
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.service.ros_transport import RosTransport
-from zenoh_perception.settings import Inputs
+from zenoh_perception.settings.sections import Inputs
 from zenoh_perception.wire.compressed import decode_compressed_cdr
 from zenoh_perception.wire.frames import Frame, InputKind, decode_image_cdr, decode_raw_frame
 from zenoh_perception.wire.stream_keys import StreamNames

@@ -11,7 +11,7 @@ import zenoh
 
 from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate
-from zenoh_perception.settings import Group, Outputs
+from zenoh_perception.settings.sections import Group, Outputs
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
 log = logging.getLogger(__name__)

@@ -15,7 +15,7 @@ from typing import Final, Protocol
 from zenoh_perception.errors import ProcessingError
 from zenoh_perception.pipeline import Analysis
 from zenoh_perception.service.ros_transport import TopicPublisher
-from zenoh_perception.settings import Outputs
+from zenoh_perception.settings.sections import Outputs
 from zenoh_perception.wire.detections import DETECTIONS_TOPIC, encode_detections
 from zenoh_perception.wire.tf import TF_TOPIC, encode_tf
 

@@ -21,7 +21,8 @@ from typing import Any
 
 import zenoh
 
-from zenoh_perception.settings import Ros, RosTransportKind
+from zenoh_perception.settings import RosTransportKind
+from zenoh_perception.settings.sections import Ros
 from zenoh_perception.wire.bridge_liveliness import (
     BridgeQos,
     BridgeTokenError,

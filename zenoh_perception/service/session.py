@@ -13,7 +13,7 @@ import zenoh
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
 from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
-from zenoh_perception.settings import Limits
+from zenoh_perception.settings.sections import Limits
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
 log = logging.getLogger(__name__)

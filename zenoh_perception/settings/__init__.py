@@ -46,20 +46,12 @@ from zenoh_perception.settings.loader import (
 from zenoh_perception.settings.model import Settings
 from zenoh_perception.settings.sections import (
     DEFAULT_INPUT_KEY,
-    DebugImage,
+    SECTIONS,
     DetectorProcess,
-    DetectorSettings,
-    Group,
-    Inputs,
-    Limits,
-    Logs,
-    Outputs,
-    Ros,
     RosTransportKind,
-    Selection,
     TagSizes,
 )
-from zenoh_perception.settings.table import BOUNDS, FLAT, SECTIONS, check_bound
+from zenoh_perception.settings.table import BOUNDS, FLAT, check_bound
 from zenoh_perception.settings.validate import check_ros_package
 from zenoh_perception.tags.selection import Metric, Policy
 
@@ -73,20 +65,11 @@ __all__ = [
     "MAX_SETTINGS_FILE_BYTES",
     "SECTIONS",
     "Bound",
-    "DebugImage",
     "DetectorKind",
     "DetectorProcess",
-    "DetectorSettings",
-    "Group",
-    "Inputs",
-    "Limits",
-    "Logs",
     "Metric",
-    "Outputs",
     "Policy",
-    "Ros",
     "RosTransportKind",
-    "Selection",
     "Settings",
     "TagSizes",
     "add_settings_arguments",

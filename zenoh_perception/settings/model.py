@@ -15,7 +15,9 @@ from typing import Any
 from zenoh_perception.detect.types import dictionary_names
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.settings.flat import check_known, coerce
+from zenoh_perception.settings.keys import validate_keys
 from zenoh_perception.settings.sections import (
+    SECTIONS,
     DebugImage,
     DetectorSettings,
     Group,
@@ -27,8 +29,16 @@ from zenoh_perception.settings.sections import (
     Selection,
     topic_keys,
 )
-from zenoh_perception.settings.table import FLAT, SECTIONS, section_items
-from zenoh_perception.settings.validate import validate
+from zenoh_perception.settings.table import FLAT, section_items
+from zenoh_perception.settings.validate import (
+    validate_group,
+    validate_numbers,
+    validate_ros,
+    validate_selection,
+    validate_streams,
+    validate_text,
+    validate_tf_prefix,
+)
 from zenoh_perception.wire.key_advice import FOLLOWS_INPUT
 from zenoh_perception.wire.stream_keys import Keys
 
@@ -49,17 +59,17 @@ class Settings:
     logs: Logs = field(default_factory=Logs)
 
     def __post_init__(self) -> None:
-        validate(
-            inputs=self.inputs,
-            outputs=self.outputs,
-            group=self.group,
-            ros=self.ros,
-            detection=self.detection,
-            limits=self.limits,
-            selection=self.selection,
-            debug=self.debug,
-            logs=self.logs,
-        )
+        # every check, in a fixed order (the first failure is raised)
+        sections = tuple(getattr(self, name) for name in SECTIONS)
+        validate_text(sections)
+        validate_keys(self.inputs, self.outputs)
+        validate_group(self.inputs, self.group)
+        validate_ros(self.ros, self.topic_keys())
+        validate_tf_prefix(self.outputs.tf_prefix)
+        dictionary_names(self.detection.dictionary)
+        validate_numbers(sections, self.selection)
+        validate_streams(self.inputs)
+        validate_selection(self.selection, self.inputs)
         # the dictionaries as OpenCV spells them, whatever case they were given in
         canonical = ", ".join(dictionary_names(self.detection.dictionary))
         object.__setattr__(self, "detection", replace(self.detection, dictionary=canonical))

@@ -4,6 +4,7 @@ bounded. A component takes the sections it uses; :class:`~.model.Settings` holds
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Final
@@ -439,3 +440,17 @@ def topic_keys(inputs: Inputs, outputs: Outputs) -> dict[str, Keys]:
         "detections_key": outputs.detections_key,
         "tf_key": outputs.tf_key,
     }
+
+
+#: Each section of :class:`~.model.Settings`: its attribute there and its class.
+SECTIONS: Final[Mapping[str, type]] = {
+    "inputs": Inputs,
+    "outputs": Outputs,
+    "group": Group,
+    "ros": Ros,
+    "detection": DetectorSettings,
+    "limits": Limits,
+    "selection": Selection,
+    "debug": DebugImage,
+    "logs": Logs,
+}

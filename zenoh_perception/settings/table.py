@@ -11,32 +11,8 @@ from typing import Any, Final
 
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.settings.bounds import Bound
-from zenoh_perception.settings.sections import (
-    DebugImage,
-    DetectorSettings,
-    Group,
-    Inputs,
-    Limits,
-    Logs,
-    Outputs,
-    Ros,
-    Selection,
-    TagSizes,
-)
+from zenoh_perception.settings.sections import SECTIONS, TagSizes
 from zenoh_perception.wire.stream_keys import Keys
-
-#: Each section of :class:`~.model.Settings`: its attribute there and its class.
-SECTIONS: Final[Mapping[str, type]] = {
-    "inputs": Inputs,
-    "outputs": Outputs,
-    "group": Group,
-    "ros": Ros,
-    "detection": DetectorSettings,
-    "limits": Limits,
-    "selection": Selection,
-    "debug": DebugImage,
-    "logs": Logs,
-}
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,4 +1,5 @@
-"""The checks of the whole settings, run when they are made: every failure a
+"""The checks of the settings beside the keys', each on the sections it reads, run when
+Settings are made (``Settings.__post_init__`` runs them in order): every failure a
 :class:`~zenoh_perception.errors.SettingsError` naming the setting (the CLI exits 2)."""
 
 from __future__ import annotations
@@ -7,23 +8,10 @@ import re
 from collections.abc import Sequence
 from typing import Final
 
-from zenoh_perception.detect.types import dictionary_names
 from zenoh_perception.errors import IntrinsicsError, SettingsError
 from zenoh_perception.settings.bounds import MAX_TAG_ID, MAX_TAG_SIZES, TAG_SIZE_BOUND
-from zenoh_perception.settings.keys import refuse_colliding_names, shown, validate_keys
-from zenoh_perception.settings.sections import (
-    DebugImage,
-    DetectorSettings,
-    Group,
-    Inputs,
-    Limits,
-    Logs,
-    Outputs,
-    Ros,
-    RosTransportKind,
-    Selection,
-    topic_keys,
-)
+from zenoh_perception.settings.keys import refuse_colliding_names, shown
+from zenoh_perception.settings.sections import Group, Inputs, Ros, RosTransportKind, Selection
 from zenoh_perception.settings.table import BOUNDS, FLAT, check_bound, section_items
 from zenoh_perception.sharing import GROUP_NAME
 from zenoh_perception.tags.geometry import check_intrinsics
@@ -50,7 +38,7 @@ def check_ros_package(name: str) -> str:
     return name
 
 
-def _validate_numbers(sections: Sequence[object], selection: Selection) -> None:
+def validate_numbers(sections: Sequence[object], selection: Selection) -> None:
     for section in sections:
         for name, value in section_items(section):
             if name in BOUNDS:
@@ -80,7 +68,10 @@ def _validate_intrinsics(selection: Selection) -> None:
         raise SettingsError(msg) from err
 
 
-def _validate_ros(ros: Ros, keys: dict[str, Keys]) -> None:
+def validate_ros(ros: Ros, keys: dict[str, Keys]) -> None:
+    """A ROS package, node name and namespace; on an rmw_zenoh graph ``keys`` (each ROS
+    topic's, :func:`~.sections.topic_keys`) relative topic names."""
+    check_ros_package(ros.ros_package)
     if not is_node_name(ros.ros_node_name):
         msg = (
             f"ros_node_name {ros.ros_node_name!r} is not a ROS node name (letters, digits "
@@ -114,7 +105,7 @@ def _validate_ros(ros: Ros, keys: dict[str, Keys]) -> None:
                 raise SettingsError(msg)
 
 
-def _validate_text(sections: Sequence[object]) -> None:
+def validate_text(sections: Sequence[object]) -> None:
     """No control character in any text setting: keys and names end up in log lines."""
     for name, value in (item for section in sections for item in section_items(section)):
         texts = (value,) if isinstance(value, str) else value if FLAT[name].is_keys else ()
@@ -124,7 +115,7 @@ def _validate_text(sections: Sequence[object]) -> None:
                 raise SettingsError(msg)
 
 
-def _validate_group(inputs: Inputs, group: Group) -> None:
+def validate_group(inputs: Inputs, group: Group) -> None:
     refuse_colliding_names(inputs)
     name = group.share_group
     if not name:
@@ -137,7 +128,7 @@ def _validate_group(inputs: Inputs, group: Group) -> None:
         raise SettingsError(msg)
 
 
-def _validate_streams(inputs: Inputs) -> None:
+def validate_streams(inputs: Inputs) -> None:
     for name, value in inputs.frame_inputs:
         if len(key_entries(value)) > inputs.max_streams:
             msg = (
@@ -147,34 +138,17 @@ def _validate_streams(inputs: Inputs) -> None:
             raise SettingsError(msg)
 
 
-def validate(
-    *,
-    inputs: Inputs,
-    outputs: Outputs,
-    group: Group,
-    ros: Ros,
-    detection: DetectorSettings,
-    limits: Limits,
-    selection: Selection,
-    debug: DebugImage,
-    logs: Logs,
-) -> None:
-    """Check the sections of one Settings, in a fixed order (the first failure is raised)."""
-    sections = (inputs, outputs, group, ros, detection, limits, selection, debug, logs)
-    _validate_text(sections)
-    validate_keys(inputs, outputs)
-    _validate_group(inputs, group)
-    check_ros_package(ros.ros_package)
-    _validate_ros(ros, topic_keys(inputs, outputs))
-    if not _FRAME_PREFIX.fullmatch(outputs.tf_prefix):
+def validate_tf_prefix(tf_prefix: str) -> None:
+    if not _FRAME_PREFIX.fullmatch(tf_prefix):
         msg = (
-            f"tf_prefix {outputs.tf_prefix!r} is not the start of a frame id (letters, digits, "
+            f"tf_prefix {tf_prefix!r} is not the start of a frame id (letters, digits, "
             "'_', '/', '.', '-', not starting with '/')"
         )
         raise SettingsError(msg)
-    dictionary_names(detection.dictionary)
-    _validate_numbers(sections, selection)
-    _validate_streams(inputs)
+
+
+def validate_selection(selection: Selection, inputs: Inputs) -> None:
+    """Plausible intrinsics; the distance metric with what it needs."""
     _validate_intrinsics(selection)
     if (
         selection.metric is Metric.DISTANCE
