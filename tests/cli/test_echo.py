@@ -23,6 +23,7 @@ from zenoh_perception.cli.echo import Gap, SeqGaps, StreamGaps, listen_key
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.settings import RosTransportKind
 from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 
 
@@ -122,7 +123,7 @@ class _Echo:
 def _record(seq: int) -> bytes:
     tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
     return FrameRecord(
-        seq, "cam", seq, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+        seq, "cam", seq, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, InputKind.RAW
     ).to_msgpack()
 
 

@@ -64,7 +64,7 @@ from zenoh_perception.errors import (
     RmwZenohError,
     SettingsError,
 )
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.service.threads import guarded_thread
 from zenoh_perception.settings import RosTransportKind, Settings
@@ -98,7 +98,7 @@ from zenoh_perception.wire.rmw_zenoh import dds_type_name, topic_key
 from zenoh_perception.wire.rmw_zenoh import parse_token as parse_rmw_token
 from zenoh_perception.wire.stream_keys import StreamNames, key_entries
 
-log = logging.getLogger("zenoh_perception.service.group")
+log = logging.getLogger(__name__)
 
 #: How long joining waits for the members and streams already there, s.
 DISCOVERY_TIMEOUT_S: Final = 2.0
@@ -283,7 +283,7 @@ class StreamGroup:
         self._fingerprint = fingerprint
         self._capacity = capacity
         self._take, self._release = take, release
-        self._gate = gate
+        self._log = LimitedLog(log, gate)
         self._discovery_timeout_s = discovery_timeout_s
         self._silent_after_s = silent_after_s
         self._zid = str(session.zid())
@@ -548,10 +548,14 @@ class StreamGroup:
                 if len(self._ignored_tokens) < MAX_ANNOUNCED:
                     self._ignored_tokens.add(token)
             self._ignored[err.reason] += 1
-        suppressed = self._gate.admit(f"group:{err.reason}")
-        if suppressed is not None:
-            fields = kv(group=self.name, reason=err.reason, key=err.key[:120])
-            log.warning("event=announcement_ignored %s suppressed=%d", fields, suppressed)
+        self._log(
+            logging.WARNING,
+            f"group:{err.reason}",
+            "announcement_ignored",
+            group=self.name,
+            reason=err.reason,
+            key=err.key[:120],
+        )
 
     def _forget_ignored(self, token: str) -> None:
         with self._lock:
@@ -561,19 +565,16 @@ class StreamGroup:
         settings = differing(self._fingerprint, fingerprint)
         if not settings:
             return
-        suppressed = self._gate.admit(f"group:disagreeing:{zid}")
-        if suppressed is not None:
-            log.warning(
-                "event=member_disagrees %s",
-                kv(
-                    group=self.name,
-                    member=zid,
-                    differs=",".join(settings),
-                    detail="left out of the assignment: every member needs the same "
-                    + ", ".join(GROUP_SETTINGS),
-                    suppressed=suppressed,
-                ),
-            )
+        self._log(
+            logging.WARNING,
+            f"group:disagreeing:{zid}",
+            "member_disagrees",
+            group=self.name,
+            member=zid,
+            differs=",".join(settings),
+            detail="left out of the assignment: every member needs the same "
+            + ", ".join(GROUP_SETTINGS),
+        )
 
     # -- the group's thread ------------------------------------------------------------------
 

@@ -14,7 +14,9 @@ from zenoh_perception.errors import SettingsError
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.settings.sections import Inputs
 from zenoh_perception.wire.compressed import decode_compressed_cdr
-from zenoh_perception.wire.frames import Frame, InputKind, decode_image_cdr, decode_raw_frame
+from zenoh_perception.wire.frames import Frame, decode_image_cdr, decode_raw_frame
+from zenoh_perception.wire.input_kinds import InputKind
+from zenoh_perception.wire.ros_topics import input_role
 from zenoh_perception.wire.stream_keys import StreamNames
 
 RAW: Final = InputKind.RAW
@@ -81,11 +83,11 @@ def kind_of(key: str, inputs: Inputs, ros: RosTransport) -> InputKind:
         return any(zenoh.KeyExpr(k).intersects(concrete) for k in keys)
 
     if inputs.input_key:
-        if ros.rmw_zenoh and matches(ros.keys("camera")):
+        if ros.rmw_zenoh and matches(ros.keys(input_role(CDR))):
             return CDR
         if matches(inputs.input_entries):
             return RAW
-    if inputs.compressed_input_key and matches(ros.keys("compressed_camera")):
+    if inputs.compressed_input_key and matches(ros.keys(input_role(COMPRESSED))):
         return COMPRESSED
     msg = f"{key!r} matches neither input_key nor compressed_input_key"
     raise SettingsError(msg)

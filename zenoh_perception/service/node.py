@@ -104,8 +104,9 @@ from zenoh_perception.service.threads import guarded_thread
 from zenoh_perception.service.watchdog import watch
 from zenoh_perception.service.workers import Workers, usable_cpus
 from zenoh_perception.settings import DetectorProcess, Settings
-from zenoh_perception.wire.frames import InputKind
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import TagCodec
+from zenoh_perception.wire.ros_topics import input_role
 
 log = logging.getLogger(__name__)
 
@@ -285,12 +286,12 @@ class PerceptionService:
             for key in s.inputs.input_entries:
                 self._declared.append(session.declare_subscriber(key, self._receiver(RAW)))
             if s.inputs.input_key:
-                self._declared.extend(self._ros.subscribe("camera", self._receiver(CDR)))
+                self._declared.extend(self._ros.subscribe(input_role(CDR), self._receiver(CDR)))
         elif s.inputs.input_key:
-            self._declared.extend(self._ros.subscribe("camera", self._receiver(RAW)))
+            self._declared.extend(self._ros.subscribe(input_role(RAW), self._receiver(RAW)))
         if s.inputs.compressed_input_key:
             self._declared.extend(
-                self._ros.subscribe("compressed_camera", self._receiver(COMPRESSED))
+                self._ros.subscribe(input_role(COMPRESSED), self._receiver(COMPRESSED))
             )
 
     def _worker_count(self) -> int:

@@ -14,6 +14,8 @@ from zenoh_perception.service.logs import kv
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stream import Stream
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.input_kinds import InputKind
+from zenoh_perception.wire.ros_topics import input_role
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +43,8 @@ def log_started(
             zid=zid,
             **endpoints,
             ros_transport=s.ros.ros_transport,
-            input=",".join(ros.keys("camera")),
-            compressed_input=",".join(ros.keys("compressed_camera")),
+            input=",".join(ros.keys(input_role(InputKind.CDR))),
+            compressed_input=",".join(ros.keys(input_role(InputKind.COMPRESSED))),
             tag=s.outputs.tag_key if named else ros.key("tag"),
             record=s.outputs.record_key,
             detector=s.detection.detector,

@@ -44,7 +44,7 @@ from zenoh_perception.wire.rmw_zenoh import (
     topic_key,
     type_hash,
 )
-from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
+from zenoh_perception.wire.ros_topics import INPUT_ROLES, Direction, RosTopic, ros_topic
 from zenoh_perception.wire.stream_keys import Keys, has_wildcard, key_entries, output_key
 
 RMW_ZENOH: str = RosTransportKind.RMW_ZENOH
@@ -213,7 +213,7 @@ class RosTransport:
         if not self.rmw_zenoh:
             return None
         concrete = zenoh.KeyExpr(key)
-        for role in ("camera", "compressed_camera"):
+        for role in INPUT_ROLES:
             topic = ros_topic(role)
             for entry in key_entries(self._topic_keys[topic.key_setting]):
                 # a concrete entry's token is declared with its subscription

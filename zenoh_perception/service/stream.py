@@ -58,7 +58,8 @@ from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.settings import DetectorProcess, Settings
 from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.wire.frames import Frame, InputKind, check_payload_size
+from zenoh_perception.wire.frames import Frame, check_payload_size
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec
 
 log = logging.getLogger(__name__)
@@ -409,8 +410,8 @@ class Stream:
                 "convert_ms": analysis.convert_ms,
                 "detect_ms": analysis.detect_ms,
             },
-            source=kind.value,
-            stream=str(arrival.sample.key_expr),
+            source=kind,
+            input_key=str(arrival.sample.key_expr),
             instance=self._shared.instance,
         )
 
