@@ -103,7 +103,7 @@ def test_generated_frames_are_never_abandoned_for_a_busy_machine(
     with pytest.raises(_StartedError):
         lockstep(["opencv"], [scene], None, "x")
     assert given == [("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS))]
-    assert 20 * Settings().frame_deadline_ms <= LOCKSTEP_DEADLINE_MS
+    assert 20 * Settings().limits.frame_deadline_ms <= LOCKSTEP_DEADLINE_MS
 
 
 def test_a_record_s_tags_become_detections() -> None:
