@@ -3,6 +3,7 @@ floor: every frame answered, recall and timing from the records, passes pooled."
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -49,7 +50,8 @@ def test_the_sets_go_through_service_processes_in_passes(quick: BenchRun) -> Non
             assert summary["found"] > 0
             ratios = entry["pass_ratios"][who]
             assert len(ratios) == passes
-            assert all(r > 0.0 for r in ratios)
+            # (service - floor) / OpenCV: its sign is the machine's load, not the code's
+            assert all(math.isfinite(r) for r in ratios)
             # the overhead: e2e minus the service's own detect_ms, frame by frame
             assert 0.0 < summary["detect_median_ms"] < summary["p99_ms"]
             assert summary["overhead_median_ms"] is not None
