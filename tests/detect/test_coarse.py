@@ -1,0 +1,76 @@
+"""The coarse first read: which frames get it, which markers it offers as the tag."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from zenoh_perception.detect.coarse import GATE_SIDE_PX, CoarseRead, same_answer
+from zenoh_perception.tags.geometry import tag_center
+from zenoh_perception.tags.selection import TagMessage
+from zenoh_perception_bench.scene import render_markers
+
+DICT = ("DICT_4X4_50",)
+
+
+def _square(x0: float, y0: float, side: float) -> npt.NDArray[np.float64]:
+    return np.array([[x0, y0], [x0 + side, y0], [x0 + side, y0 + side], [x0, y0 + side]])
+
+
+def _gray(markers: list[tuple[int, npt.NDArray[np.float64]]]) -> npt.NDArray[np.uint8]:
+    image = render_markers(1280, 720, markers)
+    return np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY), np.uint8)
+
+
+def _read(previous: float) -> CoarseRead:
+    coarse = CoarseRead(DICT)
+    coarse.remember(previous)
+    return coarse
+
+
+def test_only_a_frame_after_a_near_tag_is_read_coarsely() -> None:
+    coarse = CoarseRead(DICT)
+    assert not coarse.due()  # the stream's first frame
+    coarse.remember(GATE_SIDE_PX - 1)
+    assert not coarse.due()
+    coarse.remember(GATE_SIDE_PX)
+    assert coarse.due()
+    coarse.remember(0.0)  # no tag
+    assert not coarse.due()
+
+
+def test_the_largest_marker_comes_back_at_full_resolution() -> None:
+    square = _square(300.3, 200.6, 180)
+    candidates = _read(120).candidates(_gray([(7, square), (3, _square(800, 300, 100))]))
+    assert [c.tag_id for c in candidates] == [7, 3]
+    # within a pixel of the drawn corners before the pipeline's edge fit
+    centre = tag_center(candidates[0].corners)
+    assert np.hypot(centre[0] - 390.3, centre[1] - 290.6) < 0.5
+    assert np.abs(candidates[0].corners - square.astype(np.float32)).max() < 1.5
+
+
+def test_a_small_tag_is_not_offered_it_is_read_whole() -> None:
+    assert _read(120).candidates(_gray([(7, _square(300, 200, 30))])) == []
+
+
+def test_two_markers_of_about_one_size_are_left_to_the_whole_read() -> None:
+    gray = _gray([(7, _square(200, 200, 150)), (3, _square(700, 200, 146))])
+    assert _read(150).candidates(gray) == []
+
+
+def test_a_dark_quad_it_cannot_read_as_large_as_the_tag_stops_it() -> None:
+    gray = _gray([(7, _square(200, 200, 120))])
+    gray[150:450, 700:1000] = 255
+    gray[180:420, 730:970] = 0  # a plain dark square on paper: a quad with no code
+    assert _read(120).candidates(gray) == []
+    gray[180:420, 730:970] = 255
+    assert [c.tag_id for c in _read(120).candidates(gray)] == [7]
+
+
+def test_the_same_answer_allows_half_a_pixel() -> None:
+    a = TagMessage(7, 100.0, 50.0, 0.8)
+    assert same_answer(a, TagMessage(7, 100.3, 50.3, 0.801))
+    assert not same_answer(a, TagMessage(7, 100.4, 50.4, 0.8))
+    assert not same_answer(a, TagMessage(3, 100.0, 50.0, 0.8))
+    assert not same_answer(a, TagMessage(7, 100.0, 50.0, 0.81))
