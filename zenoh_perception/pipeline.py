@@ -425,7 +425,8 @@ def early_or_whole(
     def finish(whole: Pending) -> Analysis:
         analysis = whole.finish()
         tag = next((t for t in analysis.tags if t.message() == analysis.selected), None)
-        coarse.remember(0.0 if tag is None else mean_side(np.asarray(tag.corners)))
+        side = 0.0 if tag is None else mean_side(np.asarray(tag.corners))
+        coarse.remember(side, [(t.tag_id, t.area_px) for t in analysis.tags])
         if early is None:
             return analysis
         coarse.counters["answered"] += 1

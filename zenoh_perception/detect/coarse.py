@@ -21,8 +21,8 @@ logging.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Final
+from collections.abc import Iterator, Sequence
+from typing import Any, Final
 
 import cv2
 import numpy as np
@@ -50,15 +50,22 @@ TRUST_SIDE_PX: Final = 40.0
 #: A marker is offered only when its area is at least this many times the next largest one's
 #: the coarse read found: their order cannot turn on the coarse corners' error.
 AREA_MARGIN: Final = 1.15
-#: From this previous side on (pixels), the frame is read at a quarter of its size.
-QUARTER_SIDE_PX: Final = 1e9
+#: How much larger (area) a tag may be than on the frame before: a tag that frame had and the
+#: coarse read missed must be smaller than a marker offered by this factor (times
+#: :data:`AREA_MARGIN`).
+PREVIOUS_GROWTH: Final = 1.5
+#: The crop a marker is read again in at full resolution: this many pixels around it (more
+#: than half OpenCV's largest threshold window, 23 px) ...
+CROP_MARGIN_PX: Final = 16.0
+#: ... and this many of its sides.
+CROP_MARGIN_SIDES: Final = 0.1
+#: The crop's read looks for markers of at least this fraction of the marker's side.
+CROP_FLOOR: Final = 0.6
 #: Two answers to ``tag`` are the same when their ids are, their centres are within this
 #: (pixels) and ...
 SAME_CENTRE_PX: Final = 0.5
 #: ... their closeness within this.
 SAME_CLOSENESS: Final = 0.002
-#: cv2.cornerSubPix's stop: 10 iterations or a move under 0.05 px.
-_SUBPIX_CRITERIA: Final = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.05)
 
 Gray = npt.NDArray[np.uint8]
 
@@ -71,8 +78,14 @@ class CoarseRead:
     def __init__(self, dictionaries: Sequence[str]) -> None:
         self._dictionaries = tuple(dictionaries)
         self._params = cv2.aruco.DetectorParameters()
+        # a marker 1 px from the border of the reduced frame is 2-3 px from the frame's, which
+        # the whole read may keep (its own bound is 3 px): the crop's read decides
+        self._params.minDistanceToBorder = 1
         self._detector = aruco_detector(self._dictionaries, self._params)
+        self._crop_params = cv2.aruco.DetectorParameters()
+        self._crop_detector = aruco_detector(self._dictionaries, self._crop_params)
         self._previous_side = 0.0  # the previous frame's closest tag, mean side (pixels)
+        self._previous: dict[int, float] = {}  # the previous frame's tags: id -> area
         #: frames read coarsely, and those whose tag came from that read
         self.counters: dict[str, int] = {"reads": 0, "answered": 0}
 
@@ -80,29 +93,32 @@ class CoarseRead:
         """Whether the next frame is read coarsely first."""
         return self._previous_side >= GATE_SIDE_PX
 
-    def remember(self, side_px: float) -> None:
-        """The frame's closest tag had this mean side (pixels; 0: none)."""
+    def remember(self, side_px: float, tags: Sequence[tuple[int, float]] = ()) -> None:
+        """The frame's closest tag had this mean side (pixels; 0: none), and its tags these
+        ids and areas (pixels)."""
         self._previous_side = side_px
+        self._previous = {}
+        for tag_id, area in tags:
+            self._previous[tag_id] = max(area, self._previous.get(tag_id, 0.0))
 
-    def candidates(self, gray: Gray) -> list[Detection]:
+    def candidates(self, gray: Gray) -> Iterator[Detection]:
         """The markers of ``gray`` that may be its tag, largest first (none: read it whole),
-        their corners at full resolution. Only when :meth:`due`."""
+        each as OpenCV's default reads it at full resolution. Only when :meth:`due`; each
+        read at full resolution as it is asked for."""
         self.counters["reads"] += 1
-        previous = self._previous_side
-        floor = max(FLOOR_PX, FLOOR_FRACTION * previous)
-        scale = 4 if previous >= QUARTER_SIDE_PX else 2
-        small = _reduced(gray, scale)
+        floor = max(FLOOR_PX, FLOOR_FRACTION * self._previous_side)
+        small = np.asarray(cv2.pyrDown(gray), np.uint8)
         # no marker under the floor: its perimeter as a fraction of the reduced image's side
-        rate = 4.0 * floor / scale / max(small.shape[:2])
-        if rate != self._params.minMarkerPerimeterRate:
-            self._params.minMarkerPerimeterRate = rate
-            self._detector.setDetectorParameters(self._params)
+        _set_min_perimeter(self._detector, self._params, 2.0 * floor / max(small.shape[:2]))
         found, rejected = read_markers(self._detector, small, self._dictionaries)
         # a quad OpenCV could not read at this size may be a marker the whole read reads
         unread = max((polygon_area(np.reshape(q, (4, 2))) for q in rejected), default=0.0)
+        # a tag of the frame before it did not read may be there still, and have grown
+        ids = {d.tag_id for d in found}
+        missed = [a * PREVIOUS_GROWTH / 4.0 for i, a in self._previous.items() if i not in ids]
+        unread = max([unread, *missed])
         found.sort(key=lambda d: polygon_area(d.corners), reverse=True)
-        trusted: list[Detection] = []
-        least = max(TRUST_SIDE_PX, TRUST_OVER_FLOOR * floor) / scale
+        least = max(TRUST_SIDE_PX, TRUST_OVER_FLOOR * floor) / 2.0
         for index, detection in enumerate(found):
             after = found[index + 1].corners if index + 1 < len(found) else None
             area = polygon_area(detection.corners)
@@ -111,9 +127,34 @@ class CoarseRead:
                 or area < AREA_MARGIN * unread
                 or (after is not None and area < AREA_MARGIN * polygon_area(after))
             ):
-                break
-            trusted.append(detection)
-        return [_full_resolution(gray, d, scale) for d in trusted]
+                return
+            full = self._full_resolution(gray, detection)
+            if full is None:
+                return
+            yield full
+
+    def _full_resolution(self, gray: Gray, detection: Detection) -> Detection | None:
+        """The marker ``detection`` (read on the first pyramid level of ``gray``, whose pixel
+        (x, y) is centred on the frame's (2x, 2y)) as OpenCV's default reads it at full
+        resolution, in a crop around it: the corners the whole read gives it (the adaptive
+        thresholds see the same pixels within :data:`CROP_MARGIN_PX` of it). None where that
+        read finds no marker of its id there."""
+        corners = detection.corners * np.float32(2.0)
+        side = mean_side(corners)
+        margin = CROP_MARGIN_PX + CROP_MARGIN_SIDES * side
+        height, width = gray.shape[:2]
+        x0, y0 = np.maximum(np.floor(corners.min(axis=0) - margin), 0).astype(int)
+        x1, y1 = np.ceil(corners.max(axis=0) + margin).astype(int) + 1
+        crop = gray[y0 : min(y1, height), x0 : min(x1, width)]
+        rate = 4.0 * CROP_FLOOR * side / max(crop.shape[:2])
+        _set_min_perimeter(self._crop_detector, self._crop_params, rate)
+        found = read_markers(self._crop_detector, crop, self._dictionaries, (int(x0), int(y0)))[0]
+        centre = corners.mean(axis=0)
+        for marker in found:
+            near = float(np.linalg.norm(marker.corners.mean(axis=0) - centre)) < side / 4
+            if near and marker.tag_id == detection.tag_id:
+                return marker
+        return None
 
 
 def same_answer(published: TagMessage, whole: TagMessage) -> bool:
@@ -129,19 +170,8 @@ def same_answer(published: TagMessage, whole: TagMessage) -> bool:
     )
 
 
-def _reduced(gray: Gray, scale: int) -> Gray:
-    """``gray`` at 1/``scale`` of its size (2 or 4): image-pyramid levels."""
-    small = np.asarray(cv2.pyrDown(gray), np.uint8)
-    if scale == 4:
-        small = np.asarray(cv2.pyrDown(small), np.uint8)
-    return small
-
-
-def _full_resolution(gray: Gray, detection: Detection, scale: int) -> Detection:
-    """``detection``, read on ``gray`` reduced ``scale`` times, with its corners in
-    ``gray``'s pixels (a pyramid level's pixel (x, y) is centred on the frame's
-    (x * scale, y * scale)) and found again there by OpenCV's sub-pixel corner search."""
-    corners = np.ascontiguousarray(detection.corners * np.float32(scale), np.float32)
-    window = (scale + 1, scale + 1)
-    cv2.cornerSubPix(gray, corners, window, (-1, -1), _SUBPIX_CRITERIA)
-    return Detection(detection.tag_id, corners, detection.dictionary)
+def _set_min_perimeter(detector: Any, params: Any, rate: float) -> None:
+    """``detector``'s ``minMarkerPerimeterRate`` (of its ``params``) set to ``rate``."""
+    if rate != params.minMarkerPerimeterRate:
+        params.minMarkerPerimeterRate = rate
+        detector.setDetectorParameters(params)
