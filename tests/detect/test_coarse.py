@@ -59,13 +59,31 @@ def test_two_markers_of_about_one_size_are_left_to_the_whole_read() -> None:
     assert list(_read(150).candidates(gray)) == []
 
 
-def test_a_dark_quad_it_cannot_read_as_large_as_the_tag_stops_it() -> None:
-    gray = _gray([(7, _square(200, 200, 120))])
-    gray[150:450, 700:1000] = 255
-    gray[180:420, 730:970] = 0  # a plain dark square on paper: a quad with no code
-    assert list(_read(120).candidates(gray)) == []
-    gray[180:420, 730:970] = 255
-    assert [c.tag_id for c in list(_read(120).candidates(gray))] == [7]
+def _with_dark_squares(count: int) -> npt.NDArray[np.uint8]:
+    """Tag 7 (120 px) and ``count`` plain dark squares of 240 px on paper: quads with no
+    code."""
+    gray = _gray([(7, _square(100, 100, 120))])
+    for index in range(count):
+        x = 350 + 300 * index
+        gray[150:450, x : x + 300] = 255
+        gray[180:420, x + 30 : x + 270] = 0
+    return gray
+
+
+def test_larger_quads_it_cannot_read_are_read_at_full_resolution_before_the_tag() -> None:
+    # nothing there at full resolution either: the tag is offered
+    assert [c.tag_id for c in _read(120).candidates(_with_dark_squares(2))] == [7]
+    # more than it may read again: read the frame whole
+    assert list(_read(120).candidates(_with_dark_squares(3))) == []
+
+
+def test_a_tag_of_the_frame_before_it_missed_stops_it() -> None:
+    gray = _gray([(7, _square(100, 100, 120))])
+    coarse = CoarseRead(DICT)
+    coarse.remember(120, [(7, 120.0**2), (3, 100.0**2)])  # 3 may have grown past 7
+    assert list(coarse.candidates(gray)) == []
+    coarse.remember(120, [(7, 120.0**2), (3, 60.0**2)])  # 3 was far smaller
+    assert [c.tag_id for c in coarse.candidates(gray)] == [7]
 
 
 def test_the_same_answer_allows_half_a_pixel() -> None:

@@ -58,7 +58,11 @@ PREVIOUS_GROWTH: Final = 1.5
 #: than half OpenCV's largest threshold window, 23 px) ...
 CROP_MARGIN_PX: Final = 16.0
 #: ... and this many of its sides.
-CROP_MARGIN_SIDES: Final = 0.1
+CROP_MARGIN_SIDES: Final = 0.4
+#: At most this many quads the coarse read could not read, as large as a marker it offers,
+#: are read again at full resolution (each costs about a tenth of a whole read at HD720);
+#: one more, and the frame is read whole.
+MAX_UNREAD: Final = 2
 #: The crop's read looks for markers of at least this fraction of the marker's side.
 CROP_FLOOR: Final = 0.6
 #: Two answers to ``tag`` are the same when their ids are, their centres are within this
@@ -68,6 +72,7 @@ SAME_CENTRE_PX: Final = 0.5
 SAME_CLOSENESS: Final = 0.002
 
 Gray = npt.NDArray[np.uint8]
+Quad = npt.NDArray[np.float32]
 
 
 class CoarseRead:
@@ -111,35 +116,58 @@ class CoarseRead:
         # no marker under the floor: its perimeter as a fraction of the reduced image's side
         _set_min_perimeter(self._detector, self._params, 2.0 * floor / max(small.shape[:2]))
         found, rejected = read_markers(self._detector, small, self._dictionaries)
-        # a quad OpenCV could not read at this size may be a marker the whole read reads
-        unread = max((polygon_area(np.reshape(q, (4, 2))) for q in rejected), default=0.0)
+        found.sort(key=lambda d: polygon_area(d.corners), reverse=True)
         # a tag of the frame before it did not read may be there still, and have grown
         ids = {d.tag_id for d in found}
-        missed = [a * PREVIOUS_GROWTH / 4.0 for i, a in self._previous.items() if i not in ids]
-        unread = max([unread, *missed])
-        found.sort(key=lambda d: polygon_area(d.corners), reverse=True)
+        missed = max(
+            [a * PREVIOUS_GROWTH / 4.0 for i, a in self._previous.items() if i not in ids],
+            default=0.0,
+        )
+        unread = _unread(rejected, found)
         least = max(TRUST_SIDE_PX, TRUST_OVER_FLOOR * floor) / 2.0
+        looked = 0
         for index, detection in enumerate(found):
             after = found[index + 1].corners if index + 1 < len(found) else None
             area = polygon_area(detection.corners)
             if (
                 mean_side(detection.corners) < least
-                or area < AREA_MARGIN * unread
+                or area < AREA_MARGIN * missed
                 or (after is not None and area < AREA_MARGIN * polygon_area(after))
             ):
                 return
+            # a quad OpenCV could not read at this size, about as large: read it at full
+            # resolution as the whole read does (a marker there may be read, and be larger)
+            while unread and area < AREA_MARGIN * polygon_area(unread[0]):
+                looked += 1
+                if looked > MAX_UNREAD or any(
+                    polygon_area(m.corners) * AREA_MARGIN > 4.0 * area
+                    for m in self._crop_read(gray, unread.pop(0))
+                ):
+                    return
             full = self._full_resolution(gray, detection)
             if full is None:
                 return
             yield full
 
     def _full_resolution(self, gray: Gray, detection: Detection) -> Detection | None:
-        """The marker ``detection`` (read on the first pyramid level of ``gray``, whose pixel
-        (x, y) is centred on the frame's (2x, 2y)) as OpenCV's default reads it at full
-        resolution, in a crop around it: the corners the whole read gives it (the adaptive
-        thresholds see the same pixels within :data:`CROP_MARGIN_PX` of it). None where that
-        read finds no marker of its id there."""
+        """The marker ``detection`` (read on the first pyramid level of ``gray``) as OpenCV's
+        default reads it at full resolution (:meth:`_crop_read`): the corners the whole read
+        gives it. None where that read finds no marker of its id there."""
         corners = detection.corners * np.float32(2.0)
+        side, centre = mean_side(corners), corners.mean(axis=0)
+        for marker in self._crop_read(gray, detection.corners):
+            near = float(np.linalg.norm(marker.corners.mean(axis=0) - centre)) < side / 4
+            if near and marker.tag_id == detection.tag_id:
+                return marker
+        return None
+
+    def _crop_read(self, gray: Gray, quad: Quad) -> list[Detection]:
+        """OpenCV's default read of ``gray`` at full resolution in a crop around ``quad``
+        (corners on its first pyramid level, whose pixel (x, y) is centred on the frame's
+        (2x, 2y)), for markers of at least :data:`CROP_FLOOR` of its side: the adaptive
+        thresholds see there what they see in the whole read, and the quiet zone around a
+        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`)."""
+        corners = np.asarray(quad, np.float32).reshape(4, 2) * np.float32(2.0)
         side = mean_side(corners)
         margin = CROP_MARGIN_PX + CROP_MARGIN_SIDES * side
         height, width = gray.shape[:2]
@@ -148,13 +176,23 @@ class CoarseRead:
         crop = gray[y0 : min(y1, height), x0 : min(x1, width)]
         rate = 4.0 * CROP_FLOOR * side / max(crop.shape[:2])
         _set_min_perimeter(self._crop_detector, self._crop_params, rate)
-        found = read_markers(self._crop_detector, crop, self._dictionaries, (int(x0), int(y0)))[0]
-        centre = corners.mean(axis=0)
-        for marker in found:
-            near = float(np.linalg.norm(marker.corners.mean(axis=0) - centre)) < side / 4
-            if near and marker.tag_id == detection.tag_id:
-                return marker
-        return None
+        offset = (int(x0), int(y0))
+        return read_markers(self._crop_detector, crop, self._dictionaries, offset)[0]
+
+
+def _unread(rejected: Sequence[Quad], found: Sequence[Detection]) -> list[Quad]:
+    """The quads OpenCV ``rejected`` that are not part of a marker it ``found`` (their centre
+    inside none), largest first."""
+    quads = [np.asarray(q, np.float32).reshape(4, 2) for q in rejected]
+    outside = [
+        q
+        for q in quads
+        if not any(
+            cv2.pointPolygonTest(d.corners, tuple(map(float, q.mean(axis=0))), False) >= 0
+            for d in found
+        )
+    ]
+    return sorted(outside, key=polygon_area, reverse=True)
 
 
 def same_answer(published: TagMessage, whole: TagMessage) -> bool:
