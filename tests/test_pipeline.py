@@ -346,7 +346,7 @@ def test_a_small_tag_is_read_whole_before_its_tag() -> None:
     assert detector.reads == before + 1
     assert pending.selected.tag_id == 3
     assert pending.finish().selected == pending.selected
-    assert pipeline.coarse.counters == {"reads": 1, "answered": 0}
+    assert pipeline.coarse.counters == {"reads": 1, "answered": 0, "slow": 0}
     # and the frame after: no near tag, no coarse read
     pipeline.process(frame)
     assert pipeline.coarse.counters["reads"] == 1

@@ -5,7 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import numpy.typing as npt
+import pytest
 
+from zenoh_perception.detect import coarse as coarse_module
 from zenoh_perception.detect.coarse import GATE_SIDE_PX, CoarseRead, same_answer
 from zenoh_perception.tags.geometry import tag_center
 from zenoh_perception.tags.selection import TagMessage
@@ -92,3 +94,15 @@ def test_the_same_answer_allows_half_a_pixel() -> None:
     assert not same_answer(a, TagMessage(7, 100.4, 50.4, 0.8))
     assert not same_answer(a, TagMessage(3, 100.0, 50.0, 0.8))
     assert not same_answer(a, TagMessage(7, 100.0, 50.0, 0.81))
+
+
+def test_after_a_slow_read_the_stream_s_next_frames_are_read_whole(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(coarse_module, "SLOW_READ_S", -1.0)  # every read is slow
+    monkeypatch.setattr(coarse_module, "REST_FRAMES", 3)
+    coarse = _read(120)
+    assert coarse.due()
+    assert [c.tag_id for c in coarse.candidates(_gray([(7, _square(100, 100, 120))]))] == [7]
+    assert coarse.counters["slow"] == 1
+    assert [coarse.due() for _ in range(4)] == [False, False, False, True]

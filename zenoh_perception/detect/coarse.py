@@ -21,6 +21,7 @@ logging.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator, Sequence
 from typing import Any, Final
 
@@ -71,6 +72,12 @@ SAME_CENTRE_PX: Final = 0.5
 #: ... their closeness within this.
 SAME_CLOSENESS: Final = 0.002
 
+#: A coarse read that took longer than this (seconds; 1-3 ms at HD720, 3-6 ms at HD1080 on
+#: a quiet machine) read a periodic pattern (a checkerboard with cells just above its floor
+#: took it 0.2-0.9 s at HD720): the stream's next :data:`REST_FRAMES` frames are read whole.
+SLOW_READ_S: Final = 0.05
+REST_FRAMES: Final = 300
+
 Gray = npt.NDArray[np.uint8]
 Quad = npt.NDArray[np.float32]
 
@@ -91,11 +98,16 @@ class CoarseRead:
         self._crop_detector = aruco_detector(self._dictionaries, self._crop_params)
         self._previous_side = 0.0  # the previous frame's closest tag, mean side (pixels)
         self._previous: dict[int, float] = {}  # the previous frame's tags: id -> area
-        #: frames read coarsely, and those whose tag came from that read
-        self.counters: dict[str, int] = {"reads": 0, "answered": 0}
+        #: frames read coarsely, those whose tag came from that read, and slow reads
+        self.counters: dict[str, int] = {"reads": 0, "answered": 0, "slow": 0}
+        self._rest = 0  # frames still read whole after a slow coarse read
 
     def due(self) -> bool:
-        """Whether the next frame is read coarsely first."""
+        """Whether the next frame is read coarsely first (counts the frame's rest, after a
+        slow read)."""
+        if self._rest > 0:
+            self._rest -= 1
+            return False
         return self._previous_side >= GATE_SIDE_PX
 
     def remember(self, side_px: float, tags: Sequence[tuple[int, float]] = ()) -> None:
@@ -115,7 +127,14 @@ class CoarseRead:
         small = np.asarray(cv2.pyrDown(gray), np.uint8)
         # no marker under the floor: its perimeter as a fraction of the reduced image's side
         _set_min_perimeter(self._detector, self._params, 2.0 * floor / max(small.shape[:2]))
+        started = time.perf_counter()
         found, rejected = read_markers(self._detector, small, self._dictionaries)
+        if time.perf_counter() - started > SLOW_READ_S:
+            # a periodic pattern (a checkerboard, a tiled floor) with cells just above the
+            # floor: no watchdog bounds this read, so the stream's next frames are read whole,
+            # under the frame deadline
+            self._rest = REST_FRAMES
+            self.counters["slow"] += 1
         found.sort(key=lambda d: polygon_area(d.corners), reverse=True)
         # a tag of the frame before it did not read may be there still, and have grown
         ids = {d.tag_id for d in found}
