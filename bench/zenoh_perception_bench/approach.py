@@ -216,14 +216,14 @@ def summary(run: dict[str, Any]) -> list[dict[str, Any]]:
     sides = np.asarray(run["sides_px"])
     tag = {n: np.asarray(v) for n, v in run["tag_ms"].items()}
     rows = []
+    # frames every path answered (one abandoned at the deadline is left out)
+    answered = np.all([np.isfinite(v) for v in tag.values()], axis=0)
     for label, chosen in (
-        (f"< {NEAR_SIDE_PX:g} px", sides < NEAR_SIDE_PX),
-        (f">= {NEAR_SIDE_PX:g} px", sides >= NEAR_SIDE_PX),
+        (f"< {NEAR_SIDE_PX:g} px", answered & (sides < NEAR_SIDE_PX)),
+        (f">= {NEAR_SIDE_PX:g} px", answered & (sides >= NEAR_SIDE_PX)),
     ):
         if not chosen.any():
             continue
-        # frames every path answered (one abandoned at the deadline is left out)
-        chosen &= np.all([np.isfinite(v) for v in tag.values()], axis=0)
         peer = tag[OPENCV_PEER][chosen]
         row: dict[str, Any] = {"tags": label, "frames": int(chosen.sum())}
         row["peer_ms"] = round(float(np.median(peer)), 3)
