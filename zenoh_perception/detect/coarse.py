@@ -2,21 +2,33 @@
 
 With the area closeness the tag a rover steers by is the largest marker, and a large marker
 needs few pixels to be found: OpenCV's default read of the frame's first image-pyramid level
-(half its size, :func:`cv2.pyrDown`; a quarter for very large tags) finds it in a third of the
-time of a whole read. :class:`CoarseRead` takes that read only where the stream's previous
-frame had its closest tag at least :data:`GATE_SIDE_PX` across, looks only for markers of at
-least :data:`FLOOR_FRACTION` of that side (most of OpenCV's time goes to the contours just
-above its smallest marker), and offers the markers it found as the frame's tag only while
-nothing larger can have escaped it (:meth:`CoarseRead.candidates`): each at least
-:data:`TRUST_OVER_FLOOR` times that floor and :data:`TRUST_SIDE_PX` across, with an area at
-least :data:`AREA_MARGIN` times the next one's (the order of two markers of about one size
-is left to the whole read). Their corners come back to full resolution by OpenCV's sub-pixel
-corner search there; the caller refines them further and lets the veto judge them on the
-full-resolution frame, as every marker of a whole read.
+(half its size, :func:`cv2.pyrDown`) finds it in about a third of the time of a whole read
+(a quarter-size level missed a 270 px tag under motion blur; OpenCV's ArUco3 mode, which
+reads at the scale its smallest marker allows, was no faster than the half-size read for the
+same smallest marker and found the tag less often: docs/benchmarks.md). :class:`CoarseRead` takes that read only
+where the stream's previous frame had its closest tag at least :data:`GATE_SIDE_PX` across,
+looks only for markers of at least :data:`FLOOR_FRACTION` of that side (most of OpenCV's time
+goes to the contours just above its smallest marker), and offers a marker it found as the
+frame's tag only while nothing larger can have escaped it (:meth:`CoarseRead.candidates`):
 
-On the approach set and the corpus's videos, the tag published from this read was the whole
-read's in every frame measured (docs/benchmarks.md, "Coarse first read"). Pure: no Zenoh, no
-logging.
+- it is at least :data:`TRUST_OVER_FLOOR` times that floor and :data:`TRUST_SIDE_PX` across;
+- its area is at least :data:`AREA_MARGIN` times the next marker's (the order of two markers
+  of about one size is left to the whole read);
+- no tag of the frame before that this read missed could have grown past it
+  (:data:`PREVIOUS_GROWTH`: a marker on a frame's border, or without a quiet zone, can escape
+  a half-size read);
+- a quad this read could not read, as large, holds no marker at full resolution (read again
+  there, up to :data:`MAX_UNREAD` of them).
+
+The marker offered is the one OpenCV's default read finds at full resolution in a crop around
+it, with the corners the whole read gives it (the same pixels within reach of the adaptive
+thresholds); the caller refines them as it refines every marker's and lets the veto judge it
+on the full-resolution frame. After a slow read (:data:`SLOW_READ_S`), the stream's frames are
+read whole for a while.
+
+On the approach sets and the corpus's videos the tag published from this read was the whole
+read's in all but a few frames of thousands (docs/benchmarks.md, "Coarse first read for the
+tag"). Pure: no Zenoh, no logging.
 """
 
 from __future__ import annotations
