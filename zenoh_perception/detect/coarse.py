@@ -5,11 +5,12 @@ needs few pixels to be found: OpenCV's default read of the frame's first image-p
 (half its size, :func:`cv2.pyrDown`) finds it in about a third of the time of a whole read
 (a quarter-size level missed a 270 px tag under motion blur; OpenCV's ArUco3 mode, which
 reads at the scale its smallest marker allows, was no faster than the half-size read for the
-same smallest marker and found the tag less often: docs/benchmarks.md). :class:`CoarseRead` takes that read only
-where the stream's previous frame had its closest tag at least :data:`GATE_SIDE_PX` across,
-looks only for markers of at least :data:`FLOOR_FRACTION` of that side (most of OpenCV's time
-goes to the contours just above its smallest marker), and offers a marker it found as the
-frame's tag only while nothing larger can have escaped it (:meth:`CoarseRead.candidates`):
+same smallest marker and found the tag less often: docs/benchmarks.md). :class:`CoarseRead`
+takes that read only where the stream's previous frame had its closest tag at least
+:data:`GATE_SIDE_PX` across, looks only for markers of at least :data:`FLOOR_FRACTION` of that
+side (most of OpenCV's time goes to the contours just above its smallest marker), and offers
+a marker it found as the frame's tag only while nothing larger can have escaped it
+(:meth:`CoarseRead.candidates`):
 
 - it is at least :data:`TRUST_OVER_FLOOR` times that floor and :data:`TRUST_SIDE_PX` across;
 - its area is at least :data:`AREA_MARGIN` times the next marker's (the order of two markers
