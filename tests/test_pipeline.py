@@ -10,9 +10,11 @@ import numpy.typing as npt
 import pytest
 
 from tests.helpers import pipeline_of
+from zenoh_perception.detect.coarse import same_answer
+from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
-from zenoh_perception.pipeline import TagFinder, intrinsics_from_settings, observe
+from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import closeness_from_area
 from zenoh_perception.tags.pose import Intrinsics
@@ -292,3 +294,118 @@ def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric()
     assert far.metric == Metric.AREA
     near = observe(seen(1.0, 40.0), 640, 480, settings.selection, camera)
     assert not near.ambiguous and near.metric == Metric.DISTANCE
+
+
+class _Counted(OpenCvDetector):
+    """OpenCV's detector, counting its whole-frame reads."""
+
+    reads = 0
+
+    def detect(
+        self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0, *, frame: bool = True
+    ) -> list[Detection]:
+        self.reads += 1
+        return super().detect(gray, min_perimeter_px, frame=frame)
+
+
+def _hd(markers: list[tuple[int, npt.NDArray[np.float64]]]) -> Frame:
+    image = render_markers(1280, 720, markers)
+    return Frame(image, ENCODINGS["bgra8"], None, "test", None)
+
+
+#: A near tag 7 and a farther tag 3 on HD720: the rover closing in.
+NEAR = [(7, _square(300.4, 150.2, 160)), (3, _square(900, 400, 40))]
+
+
+def _coarse_pipeline(settings: Settings | None = None) -> tuple[Pipeline, _Counted]:
+    """A pipeline whose stream has just seen the near tag (its next frame is read coarsely,
+    where the settings turn the coarse read on)."""
+    detector = _Counted()
+    pipeline = pipeline_of(settings or Settings.from_flat(coarse_first_read=True), detector)
+    pipeline.process(_hd(NEAR))
+    return pipeline, detector
+
+
+def test_a_near_tag_is_answered_from_the_coarse_read_before_the_whole_read() -> None:
+    pipeline, detector = _coarse_pipeline()
+    assert pipeline.coarse is not None
+    before = detector.reads
+    frame = _hd([(7, _square(303.7, 151.9, 164)), (3, _square(900, 400, 40))])
+    pending = pipeline.begin(frame)
+    assert detector.reads == before  # the tag is known before the whole frame is read
+    analysis = pending.finish()
+    assert detector.reads == before + 1  # ... which follows for the record
+    assert pipeline.coarse.counters["answered"] == 1
+    whole = pipeline_of(Settings()).process(frame)
+    assert pending.selected.tag_id == whole.selected.tag_id == 7
+    assert same_answer(pending.selected, whole.selected)
+    # the record: the whole read's tags, the published tag as selected, nothing else
+    assert analysis.tags == whole.tags
+    assert analysis.selected == pending.selected
+    assert analysis.whole_selected is None
+
+
+def test_a_small_tag_is_read_whole_before_its_tag() -> None:
+    pipeline, detector = _coarse_pipeline()
+    assert pipeline.coarse is not None
+    before = detector.reads
+    frame = _hd([(3, _square(900, 400, 30))])
+    pending = pipeline.begin(frame)
+    assert detector.reads == before + 1
+    assert pending.selected.tag_id == 3
+    assert pending.finish().selected == pending.selected
+    assert pipeline.coarse.counters == {"reads": 1, "answered": 0, "slow": 0}
+    # and the frame after: no near tag, no coarse read
+    pipeline.process(frame)
+    assert pipeline.coarse.counters["reads"] == 1
+
+
+def test_a_look_alike_larger_than_the_tag_is_vetoed_on_full_resolution_pixels(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    pipeline, detector = _coarse_pipeline()
+    image = render_markers(1280, 720, [(5, _square(100, 100, 240)), (7, _square(700, 200, 150))])
+    # a marker without paper around it (a printed pattern on a dark box), larger than tag 7
+    image[40:400, 40:400][:, :, :3] = np.where(
+        np.pad(np.ones((240, 240), bool), 60)[:, :, None], image[40:400, 40:400, :3], 40
+    )
+    frame = Frame(image, ENCODINGS["bgra8"], None, "test", None)
+    judged: list[tuple[int, tuple[int, ...]]] = []
+    check = Verifier.check
+
+    def seen(self: Verifier, gray: npt.NDArray[np.uint8], detection: Detection) -> str | None:
+        judged.append((detection.tag_id, gray.shape))
+        return check(self, gray, detection)
+
+    monkeypatch.setattr(Verifier, "check", seen)
+    before = detector.reads
+    pending = pipeline.begin(frame)
+    assert detector.reads == before  # answered from the coarse read
+    assert pending.selected.tag_id == 7
+    assert judged[0] == (5, (720, 1280))  # the look-alike first, on the whole frame's pixels
+    analysis = pending.finish()
+    assert [t.tag_id for t in analysis.tags] == [7]
+    assert pipeline.vetoed["quiet_zone"] >= 1
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        Settings(),
+        Settings.from_flat(coarse_first_read=True, policy="center"),
+        Settings.from_flat(
+            coarse_first_read=True, metric="distance", camera_info_key="cam/info", tag_size_m=0.2
+        ),
+        Settings.from_flat(coarse_first_read=True, confirm_frames=2),
+        Settings.from_flat(coarse_first_read=True, refine_corners=False),
+    ],
+    ids=["off", "center", "distance", "confirm", "unrefined"],
+)
+def test_no_coarse_read_where_it_may_not_give_the_whole_read_s_answer(
+    settings: Settings,
+) -> None:
+    pipeline, detector = _coarse_pipeline(settings)
+    assert pipeline.coarse is None
+    before = detector.reads
+    pipeline.begin(_hd(NEAR))
+    assert detector.reads == before + 1

@@ -715,6 +715,7 @@ OTHER_VALUES: dict[str, tuple[object, object, dict[str, object]]] = {
     "verify": (False, False, {}),
     "confirm_frames": (2, 2, {}),
     "refine_corners": (False, False, {}),
+    "coarse_first_read": (True, True, {}),
     "max_frame_bytes": (1 << 20, 1 << 20, {}),
     "max_frame_pixels": (1920 * 1080, 1920 * 1080, {}),
     "frame_budget_ms": (50.5, 50.5, {}),

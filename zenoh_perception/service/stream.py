@@ -413,6 +413,7 @@ class Stream:
             source=kind,
             input_key=str(arrival.sample.key_expr),
             instance=self._shared.instance,
+            whole_selected=analysis.whole_selected,
         )
 
     def _put_record(self, record: FrameRecord) -> None:

@@ -262,6 +262,13 @@ class DetectorSettings:
             "quads it rejected, also where it found none; beside a tag over 32 px, after the tag"
         ),
     )
+    coarse_first_read: bool = field(
+        default=False,
+        metadata=_doc(
+            "near tags (previous frame's over 48 px): read the frame at half size first and "
+            "publish the tag from it when nothing larger can have escaped; closest/area only"
+        ),
+    )
     opencv_threads: int = field(
         default=0,
         metadata=_doc(
