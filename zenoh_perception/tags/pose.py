@@ -15,6 +15,7 @@ first's error (floored at :data:`AMBIGUITY_FLOOR_PX`) and turns more than
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -59,12 +60,16 @@ class Pose:
         return float(np.linalg.norm(self.tvec))
 
 
+@functools.lru_cache(maxsize=64)
 def _object_points(size_m: float) -> npt.NDArray[np.float64]:
+    """The tag's corners in its own frame (read only: shared between calls)."""
     half = size_m / 2.0
-    return np.array(
+    points = np.array(
         [[-half, half, 0.0], [half, half, 0.0], [half, -half, 0.0], [-half, -half, 0.0]],
         dtype=np.float64,
     )
+    points.flags.writeable = False
+    return points
 
 
 #: A solution whose corners reproject farther than this from the detected ones (pixels) is
@@ -80,8 +85,8 @@ AMBIGUITY_MIN_DEG: Final = 15.0
 
 
 def _vector(values: npt.ArrayLike) -> tuple[float, float, float]:
-    v = np.asarray(values, np.float64).reshape(3)
-    return (float(v[0]), float(v[1]), float(v[2]))
+    x, y, z = np.asarray(values, np.float64).ravel().tolist()
+    return (x, y, z)
 
 
 def _largest_offset(
@@ -95,11 +100,16 @@ def _largest_offset(
     solution that is not finite."""
     rvec = np.asarray(rotation, np.float64)
     tvec = np.asarray(translation, np.float64)
-    if not (np.all(np.isfinite(rvec)) and np.all(np.isfinite(tvec))):
+    if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
         return math.inf
     projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera, None)
     error = float(np.abs(projected.reshape(4, 2) - image_points).max())
     return error if math.isfinite(error) else math.inf
+
+
+#: OpenCV's RMS reprojection error is the corners' offsets' L2 norm over sqrt(2 x 4): no
+#: corner's x or y is farther off than this times it.
+_RMS_TO_LARGEST: Final = math.sqrt(8.0)
 
 
 def _ippe(
@@ -108,7 +118,8 @@ def _ippe(
     camera: npt.NDArray[np.float64],
 ) -> tuple[float, Pose] | None:
     """IPPE_SQUARE's best solution, marked ambiguous as the module says, with its largest
-    corner offset; None when it has no finite solution."""
+    corner offset (bounded by its RMS error where that proves it within
+    :data:`MAX_REPROJECTION_PX`); None when it has no finite solution."""
     try:
         count, rvecs, tvecs, rms = cv2.solvePnPGeneric(
             object_points, image_points, camera, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
@@ -117,20 +128,23 @@ def _ippe(
         return None
     if count < 1:
         return None
-    offset = _largest_offset(object_points, image_points, camera, rvecs[0], tvecs[0])
+    errors: list[float] = np.asarray(rms, np.float64).ravel().tolist()
+    # a finite RMS error is a finite solution's: its reprojected corners are finite
+    if errors and math.isfinite(errors[0]) and _RMS_TO_LARGEST * errors[0] <= MAX_REPROJECTION_PX:
+        offset = _RMS_TO_LARGEST * errors[0]
+    else:
+        offset = _largest_offset(object_points, image_points, camera, rvecs[0], tvecs[0])
     if not math.isfinite(offset):
         return None
     rvec, tvec = _vector(rvecs[0]), _vector(tvecs[0])
-    errors = np.asarray(rms, np.float64).reshape(-1)
-    finite = count >= 2 and np.all(np.isfinite(rvecs[1])) and np.all(np.isfinite(tvecs[1]))
-    if not finite or errors.size < 2 or not np.all(np.isfinite(errors[:2])):
+    if count < 2 or len(errors) < 2 or not math.isfinite(errors[0] + errors[1]):
         return offset, Pose(rvec, tvec)
-    first, second = float(errors[0]), float(errors[1])
-    apart = rotation_angle_deg(rvec, _vector(rvecs[1]))
+    first, second = errors[0], errors[1]
+    other = (_vector(rvecs[1]), _vector(tvecs[1]))
+    apart = rotation_angle_deg(rvec, other[0])
     ambiguous = (
         second < AMBIGUITY_RATIO * max(first, AMBIGUITY_FLOOR_PX) and apart >= AMBIGUITY_MIN_DEG
     )
-    other = (_vector(rvecs[1]), _vector(tvecs[1]))
     return offset, Pose(rvec, tvec, ambiguous, (first, second), other)
 
 
@@ -164,7 +178,7 @@ def estimate_pose(
     if size_m <= 0.0:
         return None
     image_points = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    if not np.all(np.isfinite(image_points)):
+    if not math.isfinite(float(image_points.sum())):  # a NaN or an infinity in the sum
         return None
     object_points = _object_points(size_m)
     camera = intrinsics.matrix()
