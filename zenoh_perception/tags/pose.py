@@ -7,10 +7,12 @@ SQPNP's where IPPE_SQUARE's does not reproject onto them.
 A square seen small or nearly face-on has two poses that put its corners almost equally well
 (IPPE's two solutions, mirror images about the line of sight): the corners' noise decides
 between them, and the wrong one is a pose tilted the other way, tens of degrees off. A pose is
-marked ``ambiguous`` when the second solution reprojects within :data:`AMBIGUITY_RATIO` of the
-first's error (floored at :data:`AMBIGUITY_FLOOR_PX`) and turns more than
-:data:`AMBIGUITY_MIN_DEG` away from it; both errors are kept. The thresholds are set from
-``zenoh-perception bench --poses`` (docs/benchmarks.md, "Poses").
+marked ``ambiguous`` when the second solution's RMS reprojection error is below
+:data:`AMBIGUITY_RATIO` times the first's plus :data:`AMBIGUITY_MARGIN` over the tag's mean
+side in pixels (the corners' noise grows as the tag shrinks: a fixed margin marks too many
+large tags or too few small ones), and it turns :data:`AMBIGUITY_MIN_DEG` or more away from
+the first; both errors are kept. The thresholds are set from ``zenoh-perception bench
+--poses`` (docs/benchmarks.md, "Poses").
 """
 
 from __future__ import annotations
@@ -78,8 +80,9 @@ def _object_points(size_m: float) -> npt.NDArray[np.float64]:
 MAX_REPROJECTION_PX = 1.0
 #: Ambiguous: the second solution's RMS error below this times the first's ...
 AMBIGUITY_RATIO: Final = 1.5
-#: ... the first's taken as at least this (pixels: refined corners' noise on a clear tag) ...
-AMBIGUITY_FLOOR_PX: Final = 0.05
+#: ... plus this over the tag's mean side (px^2 / px: 0.05 px on a 10 px tag, 0.005 px on a
+#: 100 px one) ...
+AMBIGUITY_MARGIN: Final = 0.5
 #: ... and the two rotations this many degrees apart or more (closer, neither is a flip).
 AMBIGUITY_MIN_DEG: Final = 15.0
 
@@ -105,6 +108,12 @@ def _largest_offset(
     projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera, None)
     error = float(np.abs(projected.reshape(4, 2) - image_points).max())
     return error if math.isfinite(error) else math.inf
+
+
+def _mean_side(image_points: npt.NDArray[np.float64]) -> float:
+    """The quad's mean side (pixels), at least a pixel."""
+    corners: list[list[float]] = image_points.tolist()
+    return max(sum(math.dist(corners[i], corners[i - 3]) for i in range(4)) / 4.0, 1.0)
 
 
 #: OpenCV's RMS reprojection error is the corners' offsets' L2 norm over sqrt(2 x 4): no
@@ -143,7 +152,8 @@ def _ippe(
     other = (_vector(rvecs[1]), _vector(tvecs[1]))
     apart = rotation_angle_deg(rvec, other[0])
     ambiguous = (
-        second < AMBIGUITY_RATIO * max(first, AMBIGUITY_FLOOR_PX) and apart >= AMBIGUITY_MIN_DEG
+        second < AMBIGUITY_RATIO * first + AMBIGUITY_MARGIN / _mean_side(image_points)
+        and apart >= AMBIGUITY_MIN_DEG
     )
     return offset, Pose(rvec, tvec, ambiguous, (first, second), other)
 
