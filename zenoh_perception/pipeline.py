@@ -23,7 +23,7 @@ from zenoh_perception.tags.geometry import (
     polygon_area,
     tag_center,
 )
-from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.tags.pose import Intrinsics, PoseMemory, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
@@ -61,8 +61,11 @@ def observe(
     height: int,
     settings: Settings,
     intrinsics: Intrinsics | None = None,
+    *,
+    poses: PoseMemory | None = None,
 ) -> TagObservation:
-    """Geometry of one detection: centre, area, closeness and (when possible) pose.
+    """Geometry of one detection: centre, area, closeness and (when possible) pose, an
+    ambiguous one's solution chosen by the stream's ``poses``.
 
     With ``metric = "distance"`` the closeness is the pose's distance when there is a pose
     that is not ambiguous, else the area closeness; the observation's ``metric`` says which.
@@ -73,6 +76,8 @@ def observe(
     corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
     size = settings.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
+    if pose is not None and poses is not None:
+        pose = poses.choose((detection.dictionary, detection.tag_id), pose)
     if pose is None:
         return TagObservation(
             detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
@@ -235,6 +240,8 @@ class Pipeline(TagFinder):
             None,
         )
         self._policy = Policy(settings.policy)
+        #: the stream's last clear pose of each tag, for its ambiguous poses
+        self._poses = PoseMemory()
 
     @property
     def intrinsics(self) -> Intrinsics | None:
@@ -270,7 +277,7 @@ class Pipeline(TagFinder):
         def observed(detection: Detection) -> TagObservation:
             if refine:  # what is published is measured on refined corners
                 detection = refined(gray, detection)
-            return observe(detection, width, height, self.settings, intrinsics)
+            return observe(detection, width, height, self.settings, intrinsics, poses=self._poses)
 
         if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second

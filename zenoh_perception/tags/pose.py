@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass, replace
 from typing import Final
 
 import cv2
@@ -197,6 +197,51 @@ def estimate_pose(
         return ippe[1]
     found = [s for s in (ippe, _sqpnp(object_points, image_points, camera)) if s is not None]
     return min(found, key=lambda s: s[0])[1] if found else None
+
+
+#: The last clear pose chooses an ambiguous pose's solution only when the nearer one is within
+#: this many degrees of it: farther, the tag has turned since or that pose was off, and IPPE's
+#: own choice stands.
+MEMORY_NEAR_DEG: Final = 20.0
+
+
+def chosen_by(pose: Pose, anchor: Pose | None) -> Pose:
+    """``pose``, or where it is ambiguous and IPPE's other solution is the nearer in rotation
+    to ``anchor`` (a clear pose of the same tag a little earlier) and within
+    :data:`MEMORY_NEAR_DEG` of it, that solution: still marked ambiguous (the anchor may be
+    off), its error first in ``errors``, IPPE's best in ``other``."""
+    if not pose.ambiguous or pose.other is None or anchor is None:
+        return pose
+    near = rotation_angle_deg(anchor.rvec, pose.other[0])
+    if near > MEMORY_NEAR_DEG or near >= rotation_angle_deg(anchor.rvec, pose.rvec):
+        return pose
+    errors = None if pose.errors is None else (pose.errors[1], pose.errors[0])
+    return replace(
+        pose, rvec=pose.other[0], tvec=pose.other[1], errors=errors, other=(pose.rvec, pose.tvec)
+    )
+
+
+class PoseMemory:
+    """The last clear (not ambiguous) pose of each tag of one stream, choosing between the
+    solutions of the tag's ambiguous poses after it (:func:`chosen_by`). A clear pose is the
+    anchor, never a chosen one: an ambiguous pose that came out flipped would carry its flip
+    forward. One stream's frames, one at a time."""
+
+    #: Tags remembered at most: past it, the memory starts again (a stream sees few tags).
+    CAPACITY: Final = 1024
+
+    def __init__(self) -> None:
+        self._clear: dict[Hashable, Pose] = {}
+
+    def choose(self, tag: Hashable, pose: Pose) -> Pose:
+        """``pose`` of ``tag`` (any key naming it: its dictionary and id), as the memory
+        chooses it; a clear pose becomes the tag's anchor."""
+        if pose.ambiguous:
+            return chosen_by(pose, self._clear.get(tag))
+        if len(self._clear) >= self.CAPACITY and tag not in self._clear:
+            self._clear.clear()
+        self._clear[tag] = pose
+        return pose
 
 
 def rotation_angle_deg(first: Sequence[float], second: Sequence[float]) -> float:
