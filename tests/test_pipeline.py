@@ -182,7 +182,7 @@ def test_a_tag_s_last_clear_pose_chooses_its_ambiguous_pose_s_solution() -> None
     assert alone is not None and alone.ambiguous and alone.other is not None
     # the same tag near, turned as the mirror solution: a clear pose
     mirror, _ = cv2.Rodrigues(np.array(alone.other[0]))
-    near = project(mirror, np.array([0.1, 0.05, 1.5]), intrinsics.matrix())
+    near = project(np.asarray(mirror, np.float64), np.array([0.1, 0.05, 1.5]), intrinsics.matrix())
     detector = _Fixed()
     settings = Settings(
         verify=False,
