@@ -59,6 +59,8 @@ BACKGROUND: Final = 200
 #: 9-15 px tag in about one frame of five there, and a median of a handful says little.
 FAR_VGA_M: Final = 6
 FAR_VGA_TIMES: Final = 4
+#: The service's poses counted per distance: flipped or correct, and of those marked.
+MARKS: Final = ("flipped", "flipped_marked", "correct", "correct_marked")
 #: A pose whose rotation is this far from the truth (degrees) is flipped.
 FLIPPED_DEG: Final = 20.0
 #: The goals: over 1-8 m at HD720, medians at most these.
@@ -277,9 +279,11 @@ def accuracy(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
         rows = []
         for distance in DISTANCES_M:
             found: dict[str, list[tuple[float, float]]] = {name: [] for name in METHODS}
-            marks = {"flipped": 0, "flipped_marked": 0, "correct": 0, "correct_marked": 0}
+            marks = dict.fromkeys(MARKS, 0)
+            # the marks on the first plan.frames frames alone: every distance weighs the same
+            design = dict.fromkeys(MARKS, 0)
             frames = frames_at(plan, resolution, distance)
-            for _ in range(frames):
+            for index in range(frames):
                 rotation, tvec = random_view(resolution, float(distance), rng)
                 image, truth = render(resolution, rotation, tvec, rng.uniform(*BLUR_PX), rng)
                 for name, pose in methods.poses(image).items():
@@ -289,10 +293,16 @@ def accuracy(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
                     found[name].append(error)
                     if name == "service" and pose is not None:
                         kind = "flipped" if error[0] > FLIPPED_DEG else "correct"
-                        marks[kind] += 1
-                        marks[f"{kind}_marked"] += int(pose.ambiguous)
+                        for counts in (marks, design) if index < plan.frames else (marks,):
+                            counts[kind] += 1
+                            counts[f"{kind}_marked"] += int(pose.ambiguous)
                 tick(progress, f"poses {resolution} {distance} m")
-            row: dict[str, Any] = {"distance_m": distance, "frames": frames, **marks}
+            row: dict[str, Any] = {
+                "distance_m": distance,
+                "frames": frames,
+                **marks,
+                "design": design,
+            }
             for name, pairs in found.items():
                 row[name] = {
                     "found": len(pairs),
@@ -424,10 +434,10 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
     hd = report["accuracy"]["HD720"]
     pooled = _pooled(hd, "service", 1, 8)
     rows = [r for res in report["accuracy"].values() for r in res]
-    marks = {
-        k: sum(r[k] for r in rows)
-        for k in ("flipped", "flipped_marked", "correct", "correct_marked")
-    }
+    # the shares over the design (each distance's first plan.frames frames, every distance
+    # weighing the same), the far VGA frames rendered over besides
+    marks = {k: sum(r["design"][k] for r in rows) for k in MARKS}
+    every = {k: sum(r[k] for r in rows) for k in MARKS}
     flipped = marks["flipped_marked"] / marks["flipped"] if marks["flipped"] else 1.0
     correct = marks["correct_marked"] / marks["correct"] if marks["correct"] else 0.0
     worse = [f"{res} {w}" for res, r in report["accuracy"].items() for w in _no_worse(r)]
@@ -450,12 +460,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
         },
         {
             "goal": f">= {GOAL_FLIPPED_MARKED:.0%} of flipped poses marked ambiguous",
-            "value": f"{marks['flipped_marked']}/{marks['flipped']}",
+            "value": f"{marks['flipped_marked']}/{marks['flipped']} (every frame: "
+            f"{every['flipped_marked']}/{every['flipped']})",
             "pass": flipped >= GOAL_FLIPPED_MARKED,
         },
         {
             "goal": f"<= {GOAL_CORRECT_MARKED:.0%} of correct poses marked ambiguous",
-            "value": f"{marks['correct_marked']}/{marks['correct']}",
+            "value": f"{marks['correct_marked']}/{marks['correct']} (every frame: "
+            f"{every['correct_marked']}/{every['correct']})",
             "pass": correct <= GOAL_CORRECT_MARKED,
         },
         {
