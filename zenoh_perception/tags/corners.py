@@ -7,7 +7,8 @@ the side, at each one the grey profile read across the side (bilinear), the edge
 the centre of mass of the profile's dark-to-light step; a line is fitted through those edge
 points (least squares of their offsets across the side, each weighed by its step) and the
 corners are where neighbouring lines cross. The search
-reaches 0.7 of a cell to either side: outwards it stays within the quiet zone, inwards within
+reaches 0.7 of a cell to either side, the cell measured across the side (from the two sides
+beside it: on a tag seen at a slant the cells are narrow one way only): outwards it stays within the quiet zone, inwards within
 the black border (the border's inner edge, a cell in, rises the other way and does not weigh);
 a second pass searches again around the first pass's lines. A corner that would move farther
 than :data:`MAX_MOVE_CELLS` of a cell keeps OpenCV's position.
@@ -41,7 +42,7 @@ MAX_MOVE_CELLS: Final = 0.75
 _REACH_CELLS: Final = 0.7
 _MIN_REACH_PX: Final = 1.0
 _MAX_REACH_PX: Final = 4.0
-#: Spacing of the samples across a side (pixels).
+#: Spacing of the reads across a side at most (pixels): they span the search evenly.
 _STEP_PX: Final = 0.5
 #: Samples along a side: one every 2 px, at least 3 and at most this many.
 _MAX_SAMPLES: Final = 24
@@ -83,16 +84,18 @@ def refine_corners(
     if min(lengths) < 2.0:
         return given, unrefined
     cell = sum(lengths) / (4.0 * cells)
-    reach = min(max(_REACH_CELLS * cell, _MIN_REACH_PX), _MAX_REACH_PX)
+    # across a side the search reaches a share of the cell measured across it (the sides
+    # beside it): on a tag seen at a slant the cells are narrow one way only
+    reaches = [_reach((lengths[i - 1] + lengths[i - 3]) / (2.0 * cells)) for i in range(4)]
     samples = int(min(_MAX_SAMPLES, max(3, min(lengths) // 2)))
-    grid = _grid(samples, int(2.0 * reach / _STEP_PX) + 1)
+    grid = _grid(samples, int(2.0 * max(reaches) / _STEP_PX) + 1)
     # the outward normal turns each side a quarter turn away from the marker: which way, the
     # quad's winding says
     winding = sum(quad[i][0] * quad[i - 3][1] - quad[i - 3][0] * quad[i][1] for i in range(4))
     turn = 1.0 if winding > 0 else -1.0
     current = quad
     for _ in range(_PASSES):
-        fitted = _fit_pass(gray, current, reach, turn, grid)
+        fitted = _fit_pass(gray, current, reaches, turn, grid)
         if fitted is None:
             return given, unrefined
         current = fitted
@@ -102,12 +105,15 @@ def refine_corners(
     return np.array(kept, np.float64), np.array(refined, np.bool_)
 
 
+def _reach(cell: float) -> float:
+    return min(max(_REACH_CELLS * cell, _MIN_REACH_PX), _MAX_REACH_PX)
+
+
 class _Grid(NamedTuple):
     """Where a side's profiles are read, for a number of samples along it and of reads
     across: ``points`` (3, samples x reads) holds 1, the sample's share t of the way along
-    the side and the read's offset across it from the first read; ``moments``
-    (2, reads - 1) weighs the steps between neighbouring reads by 1 and by the offset of
-    their middle; ``powers`` (samples, 3) is 1, t and t^2, for the sums of a least-squares
+    the side and the read's index across it; ``moments`` (2, reads - 1) weighs the steps
+    between neighbouring reads by 1 and by the index of their middle; ``powers`` (samples, 3) is 1, t and t^2, for the sums of a least-squares
     line along the side. Built once for each size (cached)."""
 
     samples: int
@@ -119,11 +125,11 @@ class _Grid(NamedTuple):
 @functools.lru_cache(maxsize=256)
 def _grid(samples: int, reads: int) -> _Grid:
     along = np.arange(samples) / (samples - 1.0)
-    across = np.arange(reads) * _STEP_PX
+    across = np.arange(reads, dtype=np.float64)
     points = np.stack(
         (np.ones(samples * reads), np.repeat(along, reads), np.tile(across, samples))
     ).astype(np.float32)
-    middles = (across[:-1] + 0.5 * _STEP_PX).astype(np.float32)
+    middles = (across[:-1] + 0.5).astype(np.float32)
     moments = np.stack((np.ones_like(middles), middles))
     powers = np.stack((np.ones(samples), along, along * along), axis=1)
     return _Grid(samples, points, moments, powers)
@@ -132,7 +138,7 @@ def _grid(samples: int, reads: int) -> _Grid:
 def _fit_pass(
     gray: npt.NDArray[np.uint8],
     quad: list[list[float]],
-    reach: float,
+    reaches: list[float],
     turn: float,
     grid: _Grid,
 ) -> list[list[float]] | None:
@@ -145,25 +151,27 @@ def _fit_pass(
     geometry is a handful of floats, done in Python; numpy does the per-sample work in a few
     calls (its per-call overhead, not the pixels, is the cost)."""
     count = grid.samples
+    width = grid.points.shape[1] // count
+    clear = max(reaches) + 1.0
     # per side: first sample (x, y), from it to the last (x, y), outward unit normal (x, y);
     # the map's rows, x then y of each side, are its coefficients of (1, t, offset across)
     frames = []
     coefficients = []
-    for i in range(4):
+    for i, reach in enumerate(reaches):
         (x0, y0), (x1, y1) = quad[i], quad[i - 3]
         sx, sy = x1 - x0, y1 - y0
         length = math.hypot(sx, sy)
         if length < 1e-9:
             return None
         nx, ny = turn * sy / length, -turn * sx / length
-        margin = min((reach + 1.0) / length, 0.3)
+        margin = min(clear / length, 0.3)
         ox, oy = x0 + margin * sx, y0 + margin * sy
         ax, ay = (1.0 - 2.0 * margin) * sx, (1.0 - 2.0 * margin) * sy
-        frames.append((ox, oy, ax, ay, nx, ny))
-        coefficients.append((ox - reach * nx, ax, nx))
-        coefficients.append((oy - reach * ny, ay, ny))
+        step = 2.0 * reach / (width - 1)
+        frames.append((ox, oy, ax, ay, nx, ny, reach, step))
+        coefficients.append((ox - reach * nx, ax, step * nx))
+        coefficients.append((oy - reach * ny, ay, step * ny))
     maps = np.array(coefficients, np.float32) @ grid.points
-    width = grid.points.shape[1] // count
     profiles = cv2.remap(
         gray,
         maps[0::2].reshape(4 * count, width),
@@ -187,14 +195,14 @@ def _fit_pass(
     # the first read (w o is the step's moment: no division)
     moments, fits = ((sums * usable).reshape(2, 4, count) @ grid.powers).tolist()
     lines = []
-    for (ox, oy, ax, ay, nx, ny), (n, st, stt), (so, sto, _) in zip(
+    for (ox, oy, ax, ay, nx, ny, reach, step), (n, st, stt), (so, sto, _) in zip(
         frames, moments, fits, strict=True
     ):
         det = n * stt - st * st
         if det <= _SINGULAR * n * n:  # fewer than two usable samples
             return None
-        beta = (n * sto - st * so) / det
-        alpha = (so - beta * st) / n - reach
+        beta = step * (n * sto - st * so) / det
+        alpha = (step * so - beta * st) / n - reach
         lines.append((ox + alpha * nx, oy + alpha * ny, ax + beta * nx, ay + beta * ny))
     corners = []
     for i in range(4):
