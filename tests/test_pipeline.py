@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import tracemalloc
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -17,8 +18,14 @@ from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import closeness_from_area
-from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.tags.selection import NO_TAG, Metric, Policy, selected_message
+from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.tags.selection import (
+    NO_TAG,
+    Metric,
+    Policy,
+    TagObservation,
+    selected_message,
+)
 from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta, decode_raw_frame
 from zenoh_perception_bench.poses import project, tag_rotation
 from zenoh_perception_bench.scene import render_markers
@@ -169,6 +176,41 @@ def test_observe_is_the_geometry_of_one_detection() -> None:
     assert (tag.tag_id, tag.x, tag.y) == (5, 132.0, 132.0)
     assert tag.closeness == pytest.approx(closeness_from_area(64 * 64, 640, 480))
     assert intrinsics_from_settings(Settings().selection) is None
+
+
+def test_a_tag_s_last_clear_pose_chooses_its_ambiguous_pose_s_solution() -> None:
+    intrinsics = Intrinsics(500.0, 500.0, 319.5, 239.5)
+    # a 12 px tag 8 m away nearly facing the camera: IPPE's best is the exact pose, its
+    # mirror nearly as good
+    far = project(tag_rotation(10.0, 5.0, 10.0), np.array([0.1, 0.05, 8.0]), intrinsics.matrix())
+    alone = estimate_pose(far, 0.2, intrinsics)
+    assert alone is not None and alone.ambiguous and alone.other is not None
+    # the same tag near, turned as the mirror solution: a clear pose
+    mirror, _ = cv2.Rodrigues(np.array(alone.other[0]))
+    near = project(np.asarray(mirror, np.float64), np.array([0.1, 0.05, 1.5]), intrinsics.matrix())
+    detector = _Fixed()
+    settings = Settings.from_flat(
+        verify=False,
+        tag_size_m=0.2,
+        camera_fx=500.0,
+        camera_fy=500.0,
+        camera_cx=319.5,
+        camera_cy=239.5,
+    )
+    pipeline = pipeline_of(settings, detector)
+
+    def tag(corners: npt.NDArray[np.float64]) -> TagObservation:
+        detector.detections = [Detection(7, corners.astype(np.float32))]
+        (observed,) = pipeline.process(_frame([], width=640)).tags
+        return observed
+
+    first = tag(far)
+    assert first.ambiguous and first.rvec == pytest.approx(alone.rvec, abs=1e-3)
+    assert not tag(near).ambiguous
+    # the far tag again: the stream's last clear pose picks the mirror, still marked
+    again = tag(far)
+    assert again.ambiguous and again.rvec == pytest.approx(alone.other[0], abs=1e-3)
+    assert again.pose_errors is not None and again.pose_errors[0] > again.pose_errors[1]
 
 
 def test_tag_finder_filters_by_side_and_times_the_conversion() -> None:

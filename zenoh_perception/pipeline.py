@@ -24,7 +24,7 @@ from zenoh_perception.tags.geometry import (
     polygon_area,
     tag_center,
 )
-from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.tags.pose import Intrinsics, PoseMemory, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
@@ -65,8 +65,11 @@ def observe(
     height: int,
     selection: Selection,
     intrinsics: Intrinsics | None = None,
+    *,
+    poses: PoseMemory | None = None,
 ) -> TagObservation:
-    """Geometry of one detection: centre, area, closeness and (when possible) pose.
+    """Geometry of one detection: centre, area, closeness and (when possible) pose, an
+    ambiguous one's solution chosen by the stream's ``poses``.
 
     With ``metric = "distance"`` the closeness is the pose's distance when there is a pose
     that is not ambiguous, else the area closeness; the observation's ``metric`` says which.
@@ -77,6 +80,8 @@ def observe(
     corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
     size = selection.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
+    if pose is not None and poses is not None:
+        pose = poses.choose((detection.dictionary, detection.tag_id), pose)
     if pose is None:
         return TagObservation(
             detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
@@ -251,6 +256,8 @@ class Pipeline(TagFinder):
         )
         self._policy = selection.policy
         self._coarse = coarse_read_for(detection, selection)
+        #: the stream's last clear pose of each tag, for its ambiguous poses
+        self._poses = PoseMemory()
 
     @property
     def coarse(self) -> CoarseRead | None:
@@ -300,7 +307,7 @@ class Pipeline(TagFinder):
         def observed(detection: Detection) -> TagObservation:
             if refine:  # what is published is measured on refined corners
                 detection = refined(gray, detection)
-            return observe(detection, width, height, self.selection, intrinsics)
+            return observe(detection, width, height, self.selection, intrinsics, poses=self._poses)
 
         return observed, mismatch
 
