@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import tracemalloc
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tests.helpers import pipeline_of
 from zenoh_perception import pipeline as pipeline_module
+from zenoh_perception.detect.coarse import same_answer
+from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import (
@@ -25,11 +29,12 @@ from zenoh_perception.pipeline import (
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.corners import MAX_MOVE_CELLS
 from zenoh_perception.tags.geometry import closeness_from_area, mean_side
-from zenoh_perception.tags.pose import Intrinsics
+from zenoh_perception.tags.pose import Intrinsics, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
     Policy,
+    TagObservation,
     selected_message,
     selection_key,
 )
@@ -52,7 +57,7 @@ def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:
 
 
 def test_frames_of_ever_new_sizes_do_not_grow_memory() -> None:
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     warm_up, measured = _frames(10, 0), _frames(120, 10)
     tracemalloc.start()
     try:
@@ -83,7 +88,7 @@ TWO_TAGS = [(7, _square(40, 40, 200)), (3, _square(300, 220, 40))]
 
 
 def test_every_tag_is_observed_and_the_closest_selected() -> None:
-    analysis = Pipeline(Settings()).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings()).process(_frame(TWO_TAGS))
     tags = {tag.tag_id: tag for tag in analysis.tags}
     assert sorted(tags) == [3, 7]
     assert (tags[7].x, tags[7].y) == pytest.approx((139.5, 139.5), abs=0.75)
@@ -95,7 +100,7 @@ def test_every_tag_is_observed_and_the_closest_selected() -> None:
 
 
 def test_each_tag_names_its_dictionary_and_several_are_read_at_once() -> None:
-    assert {t.dictionary for t in Pipeline(Settings()).process(_frame(TWO_TAGS)).tags} == {
+    assert {t.dictionary for t in pipeline_of(Settings()).process(_frame(TWO_TAGS)).tags} == {
         "DICT_4X4_50"
     }
     meta = RawFrameMeta(640, 480)
@@ -104,28 +109,28 @@ def test_each_tag_names_its_dictionary_and_several_are_read_at_once() -> None:
     )
     both = np.minimum(render_markers(640, 480, TWO_TAGS[:1]), apriltag)
     frame = decode_raw_frame(both.tobytes(), meta.to_msgpack())
-    pipeline = Pipeline(Settings(dictionary="DICT_APRILTAG_16h5, DICT_4X4_50"))
+    pipeline = pipeline_of(Settings.from_flat(dictionary="DICT_APRILTAG_16h5, DICT_4X4_50"))
     found = sorted((t.tag_id, t.dictionary) for t in pipeline.process(frame).tags)
     assert found == [(7, "DICT_4X4_50"), (23, "DICT_APRILTAG_16h5")]
 
 
 def test_the_center_policy_selects_the_tag_on_the_centre() -> None:
-    analysis = Pipeline(Settings(policy="center")).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings.from_flat(policy="center")).process(_frame(TWO_TAGS))
     assert analysis.selected.tag_id == 3
 
 
 def test_no_tag_selects_the_dummy() -> None:
-    analysis = Pipeline(Settings()).process(_frame([]))
+    analysis = pipeline_of(Settings()).process(_frame([]))
     assert (analysis.tags, analysis.selected) == ((), NO_TAG)
 
 
 def test_tags_smaller_than_min_tag_side_px_are_left_out() -> None:
-    analysis = Pipeline(Settings(min_tag_side_px=60.0)).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings.from_flat(min_tag_side_px=60.0)).process(_frame(TWO_TAGS))
     assert [tag.tag_id for tag in analysis.tags] == [7]
 
 
 def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None:
-    settings = Settings(
+    settings = Settings.from_flat(
         metric="distance",
         max_range_m=4.0,
         tag_sizes=((7, 0.5),),
@@ -134,7 +139,7 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
         camera_cx=319.5,
         camera_cy=239.5,
     )
-    analysis = Pipeline(settings).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(settings).process(_frame(TWO_TAGS))
     tags = {tag.tag_id: tag for tag in analysis.tags}
     # 200 px for 0.5 m at fx = 500: 1.25 m in front of the camera, a little to the side
     assert tags[7].tvec is not None and tags[7].tvec[2] == pytest.approx(1.25, rel=0.02)
@@ -146,7 +151,7 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
 
 
 def test_the_intrinsics_may_change_at_run_time() -> None:
-    pipeline = Pipeline(Settings(tag_size_m=0.2))
+    pipeline = pipeline_of(Settings.from_flat(tag_size_m=0.2))
     assert pipeline.intrinsics is None
     assert pipeline.process(_frame(TWO_TAGS)).tags[0].distance_m is None
     pipeline.intrinsics = Intrinsics(500.0, 500.0, 319.5, 239.5)
@@ -168,7 +173,9 @@ class _Fixed(Detector):
 def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() -> None:
     quad = _square(10, 10, 20).astype(np.float32)
     detector = _Fixed(Detection(42, quad))
-    analysis = Pipeline(Settings(verify=False), detector).process(_frame([], width=320))
+    analysis = pipeline_of(Settings.from_flat(verify=False), detector).process(
+        _frame([], width=320)
+    )
     assert detector.frames == [(240, 320)]
     (tag,) = analysis.tags
     assert (tag.tag_id, tag.x, tag.y, tag.area_px) == (42, 20.0, 20.0, 400.0)
@@ -177,10 +184,45 @@ def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() ->
 
 def test_observe_is_the_geometry_of_one_detection() -> None:
     detection = Detection(5, _square(100, 100, 64).astype(np.float32))
-    tag = observe(detection, 640, 480, Settings())
+    tag = observe(detection, 640, 480, Settings().selection)
     assert (tag.tag_id, tag.x, tag.y) == (5, 132.0, 132.0)
     assert tag.closeness == pytest.approx(closeness_from_area(64 * 64, 640, 480))
-    assert intrinsics_from_settings(Settings()) is None
+    assert intrinsics_from_settings(Settings().selection) is None
+
+
+def test_a_tag_s_last_clear_pose_chooses_its_ambiguous_pose_s_solution() -> None:
+    intrinsics = Intrinsics(500.0, 500.0, 319.5, 239.5)
+    # a 12 px tag 8 m away nearly facing the camera: IPPE's best is the exact pose, its
+    # mirror nearly as good
+    far = project(tag_rotation(10.0, 5.0, 10.0), np.array([0.1, 0.05, 8.0]), intrinsics.matrix())
+    alone = estimate_pose(far, 0.2, intrinsics)
+    assert alone is not None and alone.ambiguous and alone.other is not None
+    # the same tag near, turned as the mirror solution: a clear pose
+    mirror, _ = cv2.Rodrigues(np.array(alone.other[0]))
+    near = project(np.asarray(mirror, np.float64), np.array([0.1, 0.05, 1.5]), intrinsics.matrix())
+    detector = _Fixed()
+    settings = Settings.from_flat(
+        verify=False,
+        tag_size_m=0.2,
+        camera_fx=500.0,
+        camera_fy=500.0,
+        camera_cx=319.5,
+        camera_cy=239.5,
+    )
+    pipeline = pipeline_of(settings, detector)
+
+    def tag(corners: npt.NDArray[np.float64]) -> TagObservation:
+        detector.detections = [Detection(7, corners.astype(np.float32))]
+        (observed,) = pipeline.process(_frame([], width=640)).tags
+        return observed
+
+    first = tag(far)
+    assert first.ambiguous and first.rvec == pytest.approx(alone.rvec, abs=1e-3)
+    assert not tag(near).ambiguous
+    # the far tag again: the stream's last clear pose picks the mirror, still marked
+    again = tag(far)
+    assert again.ambiguous and again.rvec == pytest.approx(alone.other[0], abs=1e-3)
+    assert again.pose_errors is not None and again.pose_errors[0] > again.pose_errors[1]
 
 
 def test_tag_finder_filters_by_side_and_times_the_conversion() -> None:
@@ -203,7 +245,7 @@ def test_begin_judges_only_the_selected_tag_and_finish_the_others(
         return check(self, gray, detection)
 
     monkeypatch.setattr(Verifier, "check", counted)
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     pending = pipeline.begin(_frame(TWO_TAGS))
     assert pending.selected.tag_id == 7
     assert judged == [7]  # the closest, kept: the tag is known before 3 is read
@@ -226,7 +268,7 @@ def test_only_the_tags_the_selection_needs_are_refined_before_the_tag(
     monkeypatch.setattr(pipeline_module, "refined", counted)
     # the closest is clearly larger than the others: no other can rank before it refined
     tags = [(7, _square(40, 40, 200)), (3, _square(300, 220, 40)), (5, _square(450, 60, 60))]
-    pending = Pipeline(Settings()).begin(_frame(tags))
+    pending = pipeline_of(Settings()).begin(_frame(tags))
     assert pending.selected.tag_id == 7
     assert refined == [7]
     analysis = pending.finish()
@@ -271,9 +313,10 @@ def test_a_rank_floor_is_never_above_the_refined_tag_s_key(
     shift = np.array(moves, np.float64).reshape(4, 2)
     shift *= reach / np.maximum(np.linalg.norm(shift, axis=1, keepdims=True), reach)
     moved = Detection(4, (corners + shift).astype(np.float32), "DICT_4X4_50")
-    key = selection_key(640, 480, policy)(observe(moved, 640, 480, Settings()))
+    selection = Settings().selection
+    key = selection_key(640, 480, policy)(observe(moved, 640, 480, selection))
     assert floor <= key[:2]
-    assert floor <= selection_key(640, 480, policy)(observe(detection, 640, 480, Settings()))[:2]
+    assert floor <= selection_key(640, 480, policy)(observe(detection, 640, 480, selection))[:2]
 
 
 def _lookalikes_and_a_tag() -> Frame:
@@ -286,10 +329,10 @@ def _lookalikes_and_a_tag() -> Frame:
 
 
 def test_a_vetoed_candidate_hands_the_selection_to_the_next() -> None:
-    unverified = Pipeline(Settings(verify=False)).process(_lookalikes_and_a_tag())
+    unverified = pipeline_of(Settings.from_flat(verify=False)).process(_lookalikes_and_a_tag())
     # without the veto a look-alike, closer than the tag, would be selected
     assert unverified.selected.tag_id != 3 and len(unverified.tags) > 1
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     pending = pipeline.begin(_lookalikes_and_a_tag())
     assert pending.selected.tag_id == 3
     analysis = pending.finish()
@@ -301,21 +344,21 @@ def test_a_vetoed_candidate_hands_the_selection_to_the_next() -> None:
 @pytest.mark.parametrize("policy", ["closest", "center"])
 def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> None:
     rng = np.random.default_rng(3)
-    settings = Settings(policy=policy)
-    staged, whole = Pipeline(settings), Pipeline(settings)
+    settings = Settings.from_flat(policy=policy)
+    staged, whole = pipeline_of(settings), pipeline_of(settings)
     for kind in ("keys", "text", "tiles", "other_family"):
         frame = Frame(
             lookalike_frame(kind, "DICT_4X4_50", rng), ENCODINGS["bgra8"], None, "test", None
         )
         found, _ = whole.find(frame)  # every detection screened, then selected
         expected = selected_message(
-            tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
+            tuple(observe(d, 640, 480, settings.selection) for d in found), 640, 480, Policy(policy)
         )
         assert staged.begin(frame).selected == expected
 
 
 def _opencv_corners(frame: Frame) -> dict[int, npt.NDArray[np.float32]]:
-    analysis = Pipeline(Settings(refine_corners=False)).process(frame)
+    analysis = pipeline_of(Settings.from_flat(refine_corners=False)).process(frame)
     return {tag.tag_id: np.array(tag.corners, np.float32) for tag in analysis.tags}
 
 
@@ -324,7 +367,7 @@ def test_published_corners_are_refined_and_the_tags_found_are_opencv_s() -> None
     truth = dict(TWO_TAGS)
     frame = _frame(TWO_TAGS)
     opencv = _opencv_corners(frame)
-    analysis = Pipeline(Settings()).process(frame)
+    analysis = pipeline_of(Settings()).process(frame)
     assert sorted(tag.tag_id for tag in analysis.tags) == sorted(opencv)
     for tag in analysis.tags:
         refined = np.array(tag.corners)
@@ -337,15 +380,19 @@ def test_refinement_moves_a_detector_s_corners_onto_the_edges_unless_switched_of
     truth = _square(100, 100, 120)
     frame = _frame([(7, truth)])
     given = (truth + 0.7).astype(np.float32)  # a detector's corners, 0.7 px off
-    refined = Pipeline(Settings(verify=False), _Fixed(Detection(7, given))).process(frame)
+    refined = pipeline_of(Settings.from_flat(verify=False), _Fixed(Detection(7, given))).process(
+        frame
+    )
     assert np.linalg.norm(np.array(refined.tags[0].corners) - truth, axis=1).max() < 0.1
-    unrefined = Pipeline(Settings(verify=False, refine_corners=False), _Fixed(Detection(7, given)))
+    unrefined = pipeline_of(
+        Settings.from_flat(verify=False, refine_corners=False), _Fixed(Detection(7, given))
+    )
     assert unrefined.process(frame).tags[0].corners == tuple(map(tuple, given.tolist()))
 
 
 def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric() -> None:
     camera = Intrinsics(500.0, 500.0, 319.5, 239.5)
-    settings = Settings(
+    settings = Settings.from_flat(
         metric="distance",
         tag_size_m=0.2,
         camera_fx=camera.fx,
@@ -360,8 +407,123 @@ def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric()
         )
         return Detection(1, corners.astype(np.float32))
 
-    far = observe(seen(8.0, 10.0), 640, 480, settings, camera)
+    far = observe(seen(8.0, 10.0), 640, 480, settings.selection, camera)
     assert far.ambiguous and far.pose_errors is not None and far.distance_m is not None
     assert far.metric == Metric.AREA
-    near = observe(seen(1.0, 40.0), 640, 480, settings, camera)
+    near = observe(seen(1.0, 40.0), 640, 480, settings.selection, camera)
     assert not near.ambiguous and near.metric == Metric.DISTANCE
+
+
+class _Counted(OpenCvDetector):
+    """OpenCV's detector, counting its whole-frame reads."""
+
+    reads = 0
+
+    def detect(
+        self, gray: npt.NDArray[np.uint8], min_perimeter_px: float = 0.0, *, frame: bool = True
+    ) -> list[Detection]:
+        self.reads += 1
+        return super().detect(gray, min_perimeter_px, frame=frame)
+
+
+def _hd(markers: list[tuple[int, npt.NDArray[np.float64]]]) -> Frame:
+    image = render_markers(1280, 720, markers)
+    return Frame(image, ENCODINGS["bgra8"], None, "test", None)
+
+
+#: A near tag 7 and a farther tag 3 on HD720: the rover closing in.
+NEAR = [(7, _square(300.4, 150.2, 160)), (3, _square(900, 400, 40))]
+
+
+def _coarse_pipeline(settings: Settings | None = None) -> tuple[Pipeline, _Counted]:
+    """A pipeline whose stream has just seen the near tag (its next frame is read coarsely,
+    where the settings turn the coarse read on)."""
+    detector = _Counted()
+    pipeline = pipeline_of(settings or Settings.from_flat(coarse_first_read=True), detector)
+    pipeline.process(_hd(NEAR))
+    return pipeline, detector
+
+
+def test_a_near_tag_is_answered_from_the_coarse_read_before_the_whole_read() -> None:
+    pipeline, detector = _coarse_pipeline()
+    assert pipeline.coarse is not None
+    before = detector.reads
+    frame = _hd([(7, _square(303.7, 151.9, 164)), (3, _square(900, 400, 40))])
+    pending = pipeline.begin(frame)
+    assert detector.reads == before  # the tag is known before the whole frame is read
+    analysis = pending.finish()
+    assert detector.reads == before + 1  # ... which follows for the record
+    assert pipeline.coarse.counters["answered"] == 1
+    whole = pipeline_of(Settings()).process(frame)
+    assert pending.selected.tag_id == whole.selected.tag_id == 7
+    assert same_answer(pending.selected, whole.selected)
+    # the record: the whole read's tags, the published tag as selected, nothing else
+    assert analysis.tags == whole.tags
+    assert analysis.selected == pending.selected
+    assert analysis.whole_selected is None
+
+
+def test_a_small_tag_is_read_whole_before_its_tag() -> None:
+    pipeline, detector = _coarse_pipeline()
+    assert pipeline.coarse is not None
+    before = detector.reads
+    frame = _hd([(3, _square(900, 400, 30))])
+    pending = pipeline.begin(frame)
+    assert detector.reads == before + 1
+    assert pending.selected.tag_id == 3
+    assert pending.finish().selected == pending.selected
+    assert pipeline.coarse.counters == {"reads": 1, "answered": 0, "slow": 0}
+    # and the frame after: no near tag, no coarse read
+    pipeline.process(frame)
+    assert pipeline.coarse.counters["reads"] == 1
+
+
+def test_a_look_alike_larger_than_the_tag_is_vetoed_on_full_resolution_pixels(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    pipeline, detector = _coarse_pipeline()
+    image = render_markers(1280, 720, [(5, _square(100, 100, 240)), (7, _square(700, 200, 150))])
+    # a marker without paper around it (a printed pattern on a dark box), larger than tag 7
+    image[40:400, 40:400][:, :, :3] = np.where(
+        np.pad(np.ones((240, 240), bool), 60)[:, :, None], image[40:400, 40:400, :3], 40
+    )
+    frame = Frame(image, ENCODINGS["bgra8"], None, "test", None)
+    judged: list[tuple[int, tuple[int, ...]]] = []
+    check = Verifier.check
+
+    def seen(self: Verifier, gray: npt.NDArray[np.uint8], detection: Detection) -> str | None:
+        judged.append((detection.tag_id, gray.shape))
+        return check(self, gray, detection)
+
+    monkeypatch.setattr(Verifier, "check", seen)
+    before = detector.reads
+    pending = pipeline.begin(frame)
+    assert detector.reads == before  # answered from the coarse read
+    assert pending.selected.tag_id == 7
+    assert judged[0] == (5, (720, 1280))  # the look-alike first, on the whole frame's pixels
+    analysis = pending.finish()
+    assert [t.tag_id for t in analysis.tags] == [7]
+    assert pipeline.vetoed["quiet_zone"] >= 1
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        Settings(),
+        Settings.from_flat(coarse_first_read=True, policy="center"),
+        Settings.from_flat(
+            coarse_first_read=True, metric="distance", camera_info_key="cam/info", tag_size_m=0.2
+        ),
+        Settings.from_flat(coarse_first_read=True, confirm_frames=2),
+        Settings.from_flat(coarse_first_read=True, refine_corners=False),
+    ],
+    ids=["off", "center", "distance", "confirm", "unrefined"],
+)
+def test_no_coarse_read_where_it_may_not_give_the_whole_read_s_answer(
+    settings: Settings,
+) -> None:
+    pipeline, detector = _coarse_pipeline(settings)
+    assert pipeline.coarse is None
+    before = detector.reads
+    pipeline.begin(_hd(NEAR))
+    assert detector.reads == before + 1

@@ -2,7 +2,9 @@
 between Zenoh's callback and the ``tag`` put, and the objects wrapped around OpenCV's detector.
 
 An in-process service (the default settings: OpenCV's detector under the frame deadline,
-the second look, the veto) answers HD720 frames of one marker from a raw-frame camera; a
+the second look, the veto; the coarse first read off, so that the near marker's frames take
+the path through the detector every other frame takes) answers HD720 frames of one marker
+from a raw-frame camera; a
 profile hook (``sys.setprofile``) counts, for each frame:
 
 - in Zenoh's callback thread, every call from the service's subscriber callback on;
@@ -160,7 +162,7 @@ class _ProfiledSession:
 
 def main(frames: int) -> dict[str, Any]:
     endpoint = loopback_endpoint()
-    settings = Settings(stats_interval_s=0)
+    settings = Settings.from_flat(stats_interval_s=0, coarse_first_read=False)
     counter = Counter()
     with (
         zenoh.open(loopback_config(listen=[endpoint])) as session,

@@ -82,16 +82,17 @@ def _measure(frames: int, passes: int, seed: int, stages: dict[str, int]) -> dic
         raw_frame(image, i)
         for i, image in enumerate(frames_at("HD720", frames, seed, lookalikes=True))
     ]
-    factory = partial(pipeline_module.detector_for, settings)
+    factory = partial(pipeline_module.detector_for, settings.detection)
     detector = GuardedDetector(factory, 20.0, after_stall=factory)
-    pipeline = pipeline_module.Pipeline(settings, detector)
+    pipeline = pipeline_module.Pipeline(settings.detection, settings.selection, detector)
     codec = records_module.TagCodec()
+    most_pixels = settings.limits.max_frame_pixels
     steps: dict[str, int] = defaultdict(int)
     tags = 0
 
     def answer(payload: bytes, attachment: bytes) -> int:
         start = time.thread_time_ns()
-        frame = decode_raw_frame(bytes(payload), attachment, max_pixels=settings.max_frame_pixels)
+        frame = decode_raw_frame(bytes(payload), attachment, max_pixels=most_pixels)
         decoded = time.thread_time_ns()
         pending = pipeline.begin(frame)
         bytes(codec.encode(pending.selected))

@@ -262,23 +262,23 @@ def collect(
         tested = dictionaries if item.negative else [item.dictionary]
         videos = item.kind != "image"
         try:
-            for image in frames(item, folder, max_video_frames, settings.max_frame_pixels):
+            for image in frames(item, folder, max_video_frames, settings.limits.max_frame_pixels):
                 for dictionary in tested:
                     stream = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
                     if stream not in finders:
                         detector = make_detector(
-                            settings.detector,
+                            settings.detection.detector,
                             dictionary,
-                            full_scan_period=settings.full_scan_period,
-                            second_look=settings.second_look,
+                            full_scan_period=settings.detection.full_scan_period,
+                            second_look=settings.detection.second_look,
                         )
                         verifier = Verifier(dictionary)  # check() keeps no memory
                         finders[stream] = (
                             TagFinder(
                                 detector,
-                                settings.min_tag_side_px,
-                                verifier if settings.verify else None,
-                                settings.confirm_frames,
+                                settings.detection.min_tag_side_px,
+                                verifier if settings.detection.verify else None,
+                                settings.detection.confirm_frames,
                             ),
                             verifier,
                         )

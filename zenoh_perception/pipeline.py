@@ -11,11 +11,12 @@ from typing import Final
 
 import numpy as np
 
+from zenoh_perception.detect.coarse import CoarseRead, same_answer
 from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.detect.types import Detection, Detector, dictionary_names
 from zenoh_perception.detect.verify import REASONS, Verifier
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import DetectorSettings, Selection
 from zenoh_perception.tags.corners import MAX_MOVE_CELLS, marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (
     closeness_from_area,
@@ -25,7 +26,7 @@ from zenoh_perception.tags.geometry import (
     polygon_area,
     tag_center,
 )
-from zenoh_perception.tags.pose import Intrinsics, estimate_pose
+from zenoh_perception.tags.pose import Intrinsics, PoseMemory, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
@@ -55,16 +56,22 @@ class Analysis:
     #: The frame is not of the size of the CameraInfo whose intrinsics are in use: they were
     #: left out for it.
     intrinsics_mismatch: bool = False
+    #: The tag published came from the coarse first read and differs from the whole read's
+    #: selection, this (see :func:`~.detect.coarse.same_answer`); else None.
+    whole_selected: TagMessage | None = None
 
 
 def observe(
     detection: Detection,
     width: int,
     height: int,
-    settings: Settings,
+    selection: Selection,
     intrinsics: Intrinsics | None = None,
+    *,
+    poses: PoseMemory | None = None,
 ) -> TagObservation:
-    """Geometry of one detection: centre, area, closeness and (when possible) pose.
+    """Geometry of one detection: centre, area, closeness and (when possible) pose, an
+    ambiguous one's solution chosen by the stream's ``poses``.
 
     With ``metric = "distance"`` the closeness is the pose's distance when there is a pose
     that is not ambiguous, else the area closeness; the observation's ``metric`` says which.
@@ -73,15 +80,17 @@ def observe(
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
     corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
-    size = settings.tag_size_for(detection.tag_id)
+    size = selection.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
+    if pose is not None and poses is not None:
+        pose = poses.choose((detection.dictionary, detection.tag_id), pose)
     if pose is None:
         return TagObservation(
             detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
         )
     metric = Metric.AREA
-    if settings.metric == Metric.DISTANCE and not pose.ambiguous:
-        closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
+    if selection.metric is Metric.DISTANCE and not pose.ambiguous:
+        closeness = closeness_from_distance(pose.distance_m, selection.max_range_m)
         metric = Metric.DISTANCE
     return TagObservation(
         detection.tag_id,
@@ -172,12 +181,11 @@ def ranked(
         yield best[1]
 
 
-def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
-    if not settings.has_intrinsics:
+def intrinsics_from_settings(selection: Selection) -> Intrinsics | None:
+    s = selection
+    if not s.has_intrinsics:
         return None
-    return Intrinsics(
-        settings.camera_fx, settings.camera_fy, settings.camera_cx, settings.camera_cy
-    )
+    return Intrinsics(s.camera_fx, s.camera_fy, s.camera_cx, s.camera_cy)
 
 
 class TagFinder:
@@ -209,18 +217,25 @@ class TagFinder:
             detections += self.look_again()
         return self.screen(gray, detections), convert_s
 
-    def detect(self, frame: Frame) -> tuple[Gray, list[Detection], float]:
+    def detect(
+        self, frame: Frame, converted: tuple[Gray, float] | None = None
+    ) -> tuple[Gray, list[Detection], float]:
         """The first steps of :meth:`find`: the grey image, the detector's markers at least
-        ``min_side_px`` a side, and the seconds the conversion took."""
+        ``min_side_px`` a side, and the seconds the conversion took (``converted``: the grey
+        image and those seconds, from :meth:`convert`)."""
+        gray, convert_s = self.convert(frame) if converted is None else converted
+        detections = self.detector.detect(gray)
+        if self._min_side_px > 0.0 and detections:
+            detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
+        return gray, detections, convert_s
+
+    def convert(self, frame: Frame) -> tuple[Gray, float]:
+        """The frame's grey image, and the seconds the conversion took."""
         start = time.perf_counter()
         # a detector in another process offers the buffer it reads from (None: any array), so
         # that the grey image is not copied into it
         gray = to_gray(frame, self.detector.gray_buffer(*frame.pixels.shape[:2]))
-        converted = time.perf_counter()
-        detections = self.detector.detect(gray)
-        if self._min_side_px > 0.0 and detections:
-            detections = [d for d in detections if mean_side(d.corners) >= self._min_side_px]
-        return gray, detections, converted - start
+        return gray, time.perf_counter() - start
 
     def look_again(self) -> list[Detection]:
         """The markers the detector's second look adds to the frame :meth:`detect` read last,
@@ -266,7 +281,7 @@ class TagFinder:
         self.vetoed.update(reasons)
 
 
-def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
+def detector_for(settings: DetectorSettings, *, wary: bool = False) -> Detector:
     """The detector the settings name: what :class:`Pipeline` runs unless given another (the
     service's deadline runs it in a child process, built there by this function). ``wary``:
     for a detector that replaces one whose read stalled (see
@@ -289,18 +304,32 @@ class Pipeline(TagFinder):
     image size.
     """
 
-    def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
-        self.settings = settings
+    def __init__(
+        self,
+        detection: DetectorSettings,
+        selection: Selection,
+        detector: Detector | None = None,
+    ) -> None:
+        self.detection, self.selection = detection, selection
         if detector is None:
-            detector = detector_for(settings)
-        verifier = Verifier(settings.dictionary) if settings.verify else None
-        super().__init__(detector, settings.min_tag_side_px, verifier, settings.confirm_frames)
+            detector = detector_for(detection)
+        verifier = Verifier(detection.dictionary) if detection.verify else None
+        super().__init__(detector, detection.min_tag_side_px, verifier, detection.confirm_frames)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
-            intrinsics_from_settings(settings),
+            intrinsics_from_settings(selection),
             None,
         )
-        self._policy = Policy(settings.policy)
+        self._policy = selection.policy
+        self._coarse = coarse_read_for(detection, selection)
+        #: the stream's last clear pose of each tag, for its ambiguous poses
+        self._poses = PoseMemory()
+
+    @property
+    def coarse(self) -> CoarseRead | None:
+        """The stream's coarse first read (its counters), or None when the settings leave it
+        out (:func:`coarse_read_for`)."""
+        return self._coarse
 
     @property
     def intrinsics(self) -> Intrinsics | None:
@@ -322,21 +351,38 @@ class Pipeline(TagFinder):
         """The frame's selected tag, with as little of the verifier's work as that needs:
         candidates are judged in the order the selection ranks them, up to the first kept;
         :meth:`Pending.finish` judges the others. The selection is the one :meth:`process`
-        makes."""
+        makes, or, with the coarse first read (:mod:`~.detect.coarse`), the one it offers,
+        the frame read whole by :meth:`Pending.finish`."""
         start = time.perf_counter()
-        gray, detections, convert_s = self.detect(frame)
-        width, height = frame.width, frame.height
+        converted = self.convert(frame)
+        if self._coarse is None:
+            return self.begin_whole(frame, converted, start)
+        return early_or_whole(self, self._coarse, frame, converted, start)
+
+    def observer(
+        self, gray: Gray, width: int, height: int
+    ) -> tuple[Callable[[Detection], TagObservation], bool]:
+        """How a detection of the frame ``gray`` is measured (its corners refined first, with
+        ``refine_corners``), and whether the intrinsics in use were left out for its size."""
         intrinsics, size = self._camera
         mismatch = intrinsics is not None and size is not None and size != (width, height)
         if mismatch:
             intrinsics = None
-
-        refine = self.settings.refine_corners
+        refine = self.detection.refine_corners
 
         def observed(detection: Detection) -> TagObservation:
             if refine:  # what is published is measured on refined corners
                 detection = refined(gray, detection)
-            return observe(detection, width, height, self.settings, intrinsics)
+            return observe(detection, width, height, self.selection, intrinsics, poses=self._poses)
+
+        return observed, mismatch
+
+    def begin_whole(self, frame: Frame, converted: tuple[Gray, float], start: float) -> Pending:
+        """:meth:`begin` on the whole frame, converted already (``start``: when the frame's
+        detection time began, :func:`time.perf_counter`)."""
+        gray, detections, convert_s = self.detect(frame, converted)
+        width, height = frame.width, frame.height
+        observed, mismatch = self.observer(gray, width, height)
 
         if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second
@@ -353,9 +399,10 @@ class Pipeline(TagFinder):
             )
             return Pending(analysis.selected, mismatch, lambda: analysis)
         self.start(gray)
-        # a tag is observed (its corners refined, its geometry and pose) only when the
-        # selection needs it before the tag, or once it is kept, after the tag: the floors
-        # of the others' keys, from OpenCV's corners, say which may rank before it
+        # without poses a tag is observed (its corners refined, its geometry) only when the
+        # selection needs it before the tag, or once it is kept, after the tag: the floors of
+        # the others' keys, from OpenCV's corners, say which may rank before it. With poses
+        # every detection is observed, in order: the stream's pose memory learns from each.
         observations: dict[int, TagObservation] = {}
 
         def observation(index: int) -> TagObservation:
@@ -364,8 +411,13 @@ class Pipeline(TagFinder):
             return observations[index]
 
         rank = selection_key(width, height, self._policy)
+        poses = self._camera[0] is not None and not mismatch
         floors = None
-        if intrinsics is None or self.settings.metric != Metric.DISTANCE:
+        if poses:
+            for index in range(len(detections)):
+                observation(index)
+        else:
+            refine = self.detection.refine_corners
             floors = [rank_floor(d, width, height, self._policy, refine=refine) for d in detections]
         verdicts: dict[int, str | None] = {}
         selected = NO_TAG
@@ -379,7 +431,11 @@ class Pipeline(TagFinder):
         def finish() -> Analysis:
             started = time.perf_counter()
             # the second look left until after the tag: smaller markers than the one selected
-            detections.extend(self.look_again())
+            added = self.look_again()
+            detections.extend(added)
+            if poses:  # observed in order, as the ones before them
+                for index in range(len(detections) - len(added), len(detections)):
+                    observation(index)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
                     verdicts[index] = self.judge(gray, detection)
@@ -417,3 +473,73 @@ class Pending:
         """The whole analysis: every detection judged, the verifier's memory and counts
         updated. Call it once, before the next frame of the stream begins."""
         return self._finish()
+
+
+def coarse_read_for(detection: DetectorSettings, selection: Selection) -> CoarseRead | None:
+    """The coarse first read of a stream (:mod:`~.detect.coarse`), where the settings ask for
+    it and it gives the whole read's answer: the tag is the largest marker (``closest`` by the
+    ``area`` closeness), each marker can be judged alone (no confirmation), and published
+    corners are refined (OpenCV's own are a pixel off, whatever resolution found them)."""
+    if not (
+        detection.coarse_first_read
+        and selection.policy == Policy.CLOSEST
+        and selection.metric == Metric.AREA
+        and detection.confirm_frames == 1
+        and detection.refine_corners
+    ):
+        return None
+    return CoarseRead(dictionary_names(detection.dictionary))
+
+
+def early_or_whole(
+    pipeline: Pipeline,
+    coarse: CoarseRead,
+    frame: Frame,
+    converted: tuple[Gray, float],
+    start: float,
+) -> Pending:
+    """:meth:`Pipeline.begin` with the coarse first read: the first of its candidates the veto
+    keeps on the full-resolution frame is the tag, and :meth:`Pending.finish` reads the frame
+    whole (for the record, and for the next frame's :meth:`CoarseRead.remember`); without
+    one, the frame is read whole before its tag."""
+    gray = converted[0]
+    early: TagObservation | None = None
+    observed, mismatch = pipeline.observer(gray, frame.width, frame.height)
+    if coarse.due():
+        if pipeline.judges_one_by_one:
+            pipeline.start(gray)
+        for candidate in coarse.candidates(gray):
+            # a marker the whole read would drop is not the tag, nor is one vetoed
+            if mean_side(candidate.corners) < pipeline.detection.min_tag_side_px or (
+                pipeline.judges_one_by_one and pipeline.judge(gray, candidate) is not None
+            ):
+                continue
+            early = observed(candidate)
+            break
+    coarse_s = time.perf_counter() - start - converted[1]
+
+    def finish(whole: Pending) -> Analysis:
+        analysis = whole.finish()
+        tag = next((t for t in analysis.tags if t.message() == analysis.selected), None)
+        side = 0.0 if tag is None else mean_side(np.asarray(tag.corners))
+        coarse.remember(side, [(t.tag_id, t.area_px) for t in analysis.tags])
+        if early is None:
+            return analysis
+        coarse.counters["answered"] += 1
+        published = early.message()
+        differs = not same_answer(published, analysis.selected)
+        return replace(
+            analysis,
+            selected=published,
+            detect_ms=analysis.detect_ms + coarse_s * 1e3,
+            whole_selected=analysis.selected if differs else None,
+        )
+
+    if early is None:
+        whole = pipeline.begin_whole(frame, converted, start)
+        return Pending(whole.selected, whole.intrinsics_mismatch, lambda: finish(whole))
+    return Pending(
+        early.message(),
+        mismatch,
+        lambda: finish(pipeline.begin_whole(frame, converted, time.perf_counter() - converted[1])),
+    )

@@ -398,7 +398,7 @@ def _read_image(path: Path, max_pixels: int) -> Image:
     return _bgra(image)
 
 
-DEFAULT_MAX_PIXELS: Final = Settings().max_frame_pixels
+DEFAULT_MAX_PIXELS: Final = Settings().limits.max_frame_pixels
 
 
 def frames(
@@ -464,7 +464,7 @@ class _Streams:
 
     def pair(self, key: str, dictionary: str) -> dict[str, Runner]:
         if key not in self.runners:
-            self.runners[key] = pair(dictionary, self.settings, best=True)
+            self.runners[key] = pair(dictionary, self.settings.detection, best=True)
         return self.runners[key]
 
 
@@ -531,7 +531,7 @@ def _evaluate_item(
     kept: list[Image] | None = [] if e2e and videos and not item.negative else None
     first: Image | None = None
     for index, image in enumerate(
-        frames(item, data, max_video_frames, streams.settings.max_frame_pixels)
+        frames(item, data, max_video_frames, streams.settings.limits.max_frame_pixels)
     ):
         if first is None:
             first = image
@@ -674,9 +674,9 @@ def _report(
 
     report: dict[str, Any] = {
         "settings": {
-            "detector": settings.detector,
-            "full_scan_period": settings.full_scan_period,
-            "max_frame_pixels": settings.max_frame_pixels,
+            "detector": settings.detection.detector,
+            "full_scan_period": settings.detection.full_scan_period,
+            "max_frame_pixels": settings.limits.max_frame_pixels,
         },
         "max_video_frames": max_frames,
         "items": [{**r, **{who: r[who].summary() for who in SHOWN}} for r in rows],

@@ -39,7 +39,7 @@ import numpy.typing as npt
 from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.corners import marker_cells, refine_corners
-from zenoh_perception.tags.pose import Intrinsics, Pose, estimate_pose, rotation_angle_deg
+from zenoh_perception.tags.pose import Intrinsics, Pose, PoseMemory, estimate_pose
 from zenoh_perception.wire.frames import Frame
 from zenoh_perception_bench.progress import Progress, tick
 from zenoh_perception_bench.runners import BGRA8
@@ -55,6 +55,12 @@ MAX_ANGLE_DEG: Final = 60.0
 BLUR_PX: Final = (0.4, 1.2)
 NOISE: Final = 2.0
 BACKGROUND: Final = 200
+#: From this distance on, VGA frames are rendered this many times over: OpenCV finds the
+#: 9-15 px tag in about one frame of five there, and a median of a handful says little.
+FAR_VGA_M: Final = 6
+FAR_VGA_TIMES: Final = 4
+#: The service's poses counted per distance: flipped or correct, and of those marked.
+MARKS: Final = ("flipped", "flipped_marked", "correct", "correct_marked")
 #: A pose whose rotation is this far from the truth (degrees) is flipped.
 FLIPPED_DEG: Final = 20.0
 #: The goals: over 1-8 m at HD720, medians at most these.
@@ -184,8 +190,7 @@ class Methods:
         focal = CAMERAS[resolution][2]
         camera = camera_matrix(resolution)
         self.intrinsics = Intrinsics(focal, focal, float(camera[0, 2]), float(camera[1, 2]))
-        settings = replace(
-            Settings(),
+        settings = Settings.from_flat(
             detector="opencv",
             dictionary=DICTIONARY,
             tag_size_m=SIZE_M,
@@ -194,7 +199,7 @@ class Methods:
             camera_cx=self.intrinsics.cx,
             camera_cy=self.intrinsics.cy,
         )
-        self.pipeline = Pipeline(settings)
+        self.pipeline = Pipeline(settings.detection, settings.selection)
         dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
         self.detectors: dict[str, cv2.aruco.ArucoDetector] = {}
         for name, method in REFINEMENTS.items():
@@ -244,7 +249,7 @@ def ippe_square(corners: npt.ArrayLike, intrinsics: Intrinsics) -> Pose | None:
 @dataclass(frozen=True, slots=True)
 class Plan:
     frames: int = 24  # per resolution and distance
-    drives: int = 8  # per resolution
+    drives: int = 16  # per resolution
     drive_frames: int = 30
     cost_tags: int = 200
     seed: int = 43
@@ -258,6 +263,12 @@ def _median(values: Sequence[float]) -> float | None:
     return statistics.median(values) if values else None
 
 
+def frames_at(plan: Plan, resolution: str, distance: int) -> int:
+    """Frames rendered at ``distance`` for ``resolution``."""
+    far = resolution == "VGA" and distance >= FAR_VGA_M
+    return plan.frames * (FAR_VGA_TIMES if far else 1)
+
+
 def accuracy(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
     """Per resolution and distance, each method's errors and the service's ambiguity marks."""
     rng = np.random.default_rng(plan.seed)
@@ -267,8 +278,11 @@ def accuracy(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
         rows = []
         for distance in DISTANCES_M:
             found: dict[str, list[tuple[float, float]]] = {name: [] for name in METHODS}
-            marks = {"flipped": 0, "flipped_marked": 0, "correct": 0, "correct_marked": 0}
-            for _ in range(plan.frames):
+            marks = dict.fromkeys(MARKS, 0)
+            # the marks on the first plan.frames frames alone: every distance weighs the same
+            design = dict.fromkeys(MARKS, 0)
+            frames = frames_at(plan, resolution, distance)
+            for index in range(frames):
                 rotation, tvec = random_view(resolution, float(distance), rng)
                 image, truth = render(resolution, rotation, tvec, rng.uniform(*BLUR_PX), rng)
                 for name, pose in methods.poses(image).items():
@@ -278,10 +292,16 @@ def accuracy(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
                     found[name].append(error)
                     if name == "service" and pose is not None:
                         kind = "flipped" if error[0] > FLIPPED_DEG else "correct"
-                        marks[kind] += 1
-                        marks[f"{kind}_marked"] += int(pose.ambiguous)
+                        for counts in (marks, design) if index < plan.frames else (marks,):
+                            counts[kind] += 1
+                            counts[f"{kind}_marked"] += int(pose.ambiguous)
                 tick(progress, f"poses {resolution} {distance} m")
-            row: dict[str, Any] = {"distance_m": distance, "frames": plan.frames, **marks}
+            row: dict[str, Any] = {
+                "distance_m": distance,
+                "frames": frames,
+                **marks,
+                "design": design,
+            }
             for name, pairs in found.items():
                 row[name] = {
                     "found": len(pairs),
@@ -309,42 +329,33 @@ def drive_views(
         tvec = tvec + step
 
 
-def with_memory(pose: Pose, anchor: Pose | None) -> Pose:
-    """An ambiguous ``pose``'s solution nearer in rotation to ``anchor``, the stream's last
-    pose that was not ambiguous (an ambiguous one may itself be flipped: chaining them carries
-    a flip forward)."""
-    if not pose.ambiguous or pose.other is None or anchor is None:
-        return pose
-    kept = rotation_angle_deg(anchor.rvec, pose.rvec)
-    other = rotation_angle_deg(anchor.rvec, pose.other[0])
-    if other < kept:
-        return replace(pose, rvec=pose.other[0], tvec=pose.other[1], other=(pose.rvec, pose.tvec))
-    return pose
-
-
 def drives(plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
-    """Flipped poses on drives: each frame's pose alone, and an ambiguous one chosen by the
-    drive's last clear pose."""
+    """Flipped poses on drives: each frame's pose alone, and an ambiguous one's solution
+    chosen by the drive's last clear pose, as the service's :class:`PoseMemory` of the
+    stream chooses it; and how many flipped poses went out unmarked either way."""
     rng = np.random.default_rng(plan.seed + 1)
     out: dict[str, Any] = {}
     for resolution in CAMERAS:
         methods = Methods(resolution)
-        counts = {"poses": 0, "ambiguous": 0, "flipped_alone": 0, "flipped_with_memory": 0}
+        counts = dict.fromkeys(
+            ("poses", "ambiguous", "flipped_alone", "flipped_with_memory", "flipped_unmarked"),
+            0,
+        )
         for _ in range(plan.drives):
-            anchor: Pose | None = None
+            memory = PoseMemory()
             for rotation, tvec in drive_views(resolution, rng, plan.drive_frames):
                 image, truth = render(resolution, rotation, tvec, 0.7, rng)
                 pose = methods.service(image)
                 if pose is None:
                     continue
-                alone, chosen = errors(pose, truth), errors(with_memory(pose, anchor), truth)
-                assert alone is not None and chosen is not None
+                chosen = memory.choose(TAG_ID, pose)
+                alone, remembered = errors(pose, truth), errors(chosen, truth)
+                assert alone is not None and remembered is not None
                 counts["poses"] += 1
                 counts["ambiguous"] += int(pose.ambiguous)
                 counts["flipped_alone"] += int(alone[0] > FLIPPED_DEG)
-                counts["flipped_with_memory"] += int(chosen[0] > FLIPPED_DEG)
-                if not pose.ambiguous:
-                    anchor = pose
+                counts["flipped_with_memory"] += int(remembered[0] > FLIPPED_DEG)
+                counts["flipped_unmarked"] += int(alone[0] > FLIPPED_DEG and not pose.ambiguous)
             tick(progress, f"drives {resolution}")
         out[resolution] = counts
     return out
@@ -422,10 +433,10 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
     hd = report["accuracy"]["HD720"]
     pooled = _pooled(hd, "service", 1, 8)
     rows = [r for res in report["accuracy"].values() for r in res]
-    marks = {
-        k: sum(r[k] for r in rows)
-        for k in ("flipped", "flipped_marked", "correct", "correct_marked")
-    }
+    # the shares over the design (each distance's first plan.frames frames, every distance
+    # weighing the same), the far VGA frames rendered over besides
+    marks = {k: sum(r["design"][k] for r in rows) for k in MARKS}
+    every = {k: sum(r[k] for r in rows) for k in MARKS}
     flipped = marks["flipped_marked"] / marks["flipped"] if marks["flipped"] else 1.0
     correct = marks["correct_marked"] / marks["correct"] if marks["correct"] else 0.0
     worse = [f"{res} {w}" for res, r in report["accuracy"].items() for w in _no_worse(r)]
@@ -448,12 +459,14 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
         },
         {
             "goal": f">= {GOAL_FLIPPED_MARKED:.0%} of flipped poses marked ambiguous",
-            "value": f"{marks['flipped_marked']}/{marks['flipped']}",
+            "value": f"{marks['flipped_marked']}/{marks['flipped']} (every frame: "
+            f"{every['flipped_marked']}/{every['flipped']})",
             "pass": flipped >= GOAL_FLIPPED_MARKED,
         },
         {
             "goal": f"<= {GOAL_CORRECT_MARKED:.0%} of correct poses marked ambiguous",
-            "value": f"{marks['correct_marked']}/{marks['correct']}",
+            "value": f"{marks['correct_marked']}/{marks['correct']} (every frame: "
+            f"{every['correct_marked']}/{every['correct']})",
             "pass": correct <= GOAL_CORRECT_MARKED,
         },
         {
@@ -465,7 +478,8 @@ def goals(report: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def run(plan: Plan) -> dict[str, Any]:
-    total = 2 * len(DISTANCES_M) * plan.frames + 2 * plan.drives + plan.cost_tags
+    rendered = sum(frames_at(plan, r, d) for r in CAMERAS for d in DISTANCES_M)
+    total = rendered + 2 * plan.drives + plan.cost_tags
     progress = Progress(total)
     report: dict[str, Any] = {
         "plan": {
@@ -519,13 +533,15 @@ def format_report(report: dict[str, Any]) -> str:
     lines += [
         "### Drives: a tag turning slowly at 6-10 m",
         "",
-        "| camera | poses | ambiguous | flipped alone | flipped, last clear pose choosing |",
-        "|---|---|---|---|---|",
+        "| camera | poses | ambiguous | flipped alone | flipped, last clear pose choosing "
+        "| flipped and not marked |",
+        "|---|---|---|---|---|---|",
     ]
     for resolution, counts in report["drives"].items():
         lines.append(
             f"| {resolution} | {counts['poses']} | {counts['ambiguous']} | "
-            f"{counts['flipped_alone']} | {counts['flipped_with_memory']} |"
+            f"{counts['flipped_alone']} | {counts['flipped_with_memory']} | "
+            f"{counts['flipped_unmarked']} |"
         )
     c = report["cost"]
     lines += [

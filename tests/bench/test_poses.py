@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from zenoh_perception.tags.pose import Pose, estimate_pose
 from zenoh_perception_bench import poses
 
 
@@ -40,20 +39,6 @@ def test_each_method_finds_the_tag_s_pose() -> None:
     assert service[0] < opencv[0]
 
 
-def test_the_last_clear_pose_chooses_between_an_ambiguous_pose_s_solutions() -> None:
-    camera = poses.camera_matrix("VGA")
-    truth = poses.tag_rotation(10.0, 5.0, 10.0)
-    corners = poses.project(truth, np.array([0.1, 0.05, 8.0]), camera)
-    intrinsics = poses.Methods("VGA").intrinsics
-    pose = estimate_pose(corners, poses.SIZE_M, intrinsics)
-    assert pose is not None and pose.ambiguous and pose.other is not None
-    # an anchor on the second solution's side picks it; on the first's, keeps the first
-    toward_other = Pose(pose.other[0], pose.other[1])
-    assert poses.with_memory(pose, toward_other).rvec == pose.other[0]
-    assert poses.with_memory(pose, Pose(pose.rvec, pose.tvec)).rvec == pose.rvec
-    assert poses.with_memory(pose, None) is pose
-
-
 def test_a_small_run_reports_every_distance_the_drives_the_cost_and_the_goals() -> None:
     plan = poses.Plan(frames=1, drives=1, drive_frames=2, cost_tags=2)
     report = poses.run(plan)
@@ -61,7 +46,9 @@ def test_a_small_run_reports_every_distance_the_drives_the_cost_and_the_goals() 
         rows = report["accuracy"][resolution]
         assert [row["distance_m"] for row in rows] == list(poses.DISTANCES_M)
         assert rows[0]["service"]["found"] == 1
-        assert report["drives"][resolution]["poses"] <= 2
+        drives = report["drives"][resolution]
+        assert drives["poses"] <= 2
+        assert drives["flipped_with_memory"] <= drives["poses"]
     assert report["cost"]["tags"] == 2
     assert math.isfinite(report["cost"]["added_ms"])
     assert len(report["goals"]) == 6

@@ -61,7 +61,7 @@ def test_status_skips_and_counts_rogue_replies_and_prints_the_real_service(
 ) -> None:
     with (
         open_session(listen=[endpoint]) as session,
-        PerceptionService(session, Settings(stats_interval_s=0.0)),
+        PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)),
         open_session(connect=[endpoint]) as rogue,
     ):
         nested = _rogue_status(rogue, b"[" * 200_000 + b"]" * 200_000)

@@ -152,6 +152,22 @@ def test_record_selected_equals_the_tag_message_bit_for_bit() -> None:
     assert record["selected"]["x_tag_center_pixel"] == tag.x_tag_center_pixel
 
 
+def test_the_whole_read_s_selection_is_there_only_where_the_tag_published_differs() -> None:
+    schema = _schema("perception-tags.schema.json")
+    plain = decode_record(_record((TAG, AREA_TAG)).to_msgpack())
+    assert "whole_selected" not in plain
+    differs = replace(_record((TAG, AREA_TAG)), whole_selected=AREA_TAG.message())
+    record = decode_record(differs.to_msgpack())
+    jsonschema.validate(record, schema)
+    assert record["whole_selected"] == message_fields(AREA_TAG.message())
+    assert record["selected"] == plain["selected"]  # what ``tag`` published
+    del record["whole_selected"]
+    assert record == plain  # every other field as it was
+    broken = msgpack.packb({**record, "whole_selected": {"tag_id": "9"}})
+    with pytest.raises(MessageDecodeError):
+        decode_record(broken)
+
+
 def test_schema_rejects_a_record_without_selection() -> None:
     record = decode_record(_record(()).to_msgpack())
     del record["selected"]

@@ -37,6 +37,7 @@ from zenoh_perception.service.zenoh_args import (
     zenoh_config_from_args,
 )
 from zenoh_perception.settings import (
+    RosTransportKind,
     Settings,
     add_settings_arguments,
     check_bound,
@@ -51,13 +52,13 @@ if TYPE_CHECKING:
 
 def _session_defaults(ros_transport: str) -> Mapping[str, object] | None:
     """rmw_zenoh's session defaults on an rmw_zenoh graph, else Zenoh's own."""
-    return RMW_ZENOH_SESSION_DEFAULTS if ros_transport == "rmw_zenoh" else None
+    return RMW_ZENOH_SESSION_DEFAULTS if ros_transport == RosTransportKind.RMW_ZENOH else None
 
 
 def run_config(args: argparse.Namespace, settings: Settings) -> zenoh.Config:
     """The service's session: the transport's defaults and the service's own
     (:data:`~zenoh_perception.service.zenoh_args.SERVICE_SESSION_DEFAULTS`), then the flags."""
-    defaults = {**(_session_defaults(settings.ros_transport) or {}), **SERVICE_SESSION_DEFAULTS}
+    defaults = {**(_session_defaults(settings.ros.ros_transport) or {}), **SERVICE_SESSION_DEFAULTS}
     return zenoh_config_from_args(args, defaults)
 
 
@@ -77,7 +78,9 @@ def _cmd_echo(args: argparse.Namespace) -> int:
         tag_key=check_key("--tag-key", args.tag_key, concrete=False),
         record_key=check_key("--record-key", args.record_key, concrete=False),
         ros_package=args.ros_package,
-        ros=echo.RosGraph(args.ros_transport, args.ros_domain_id, args.ros_namespace),
+        ros=echo.RosGraph(
+            RosTransportKind(args.ros_transport), args.ros_domain_id, args.ros_namespace
+        ),
         records=not args.tags_only,
         as_json=args.json,
         count=args.count,
@@ -115,8 +118,8 @@ def _add_echo(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser.add_argument("--ros-package", default="mrover", help="ROS package of the tag type")
     parser.add_argument(
         "--ros-transport",
-        choices=("bridge", "rmw_zenoh"),
-        default="bridge",
+        choices=tuple(RosTransportKind),
+        default=RosTransportKind.BRIDGE.value,
         help="bridge: the plain tag key; rmw_zenoh: the tag's rmw_zenoh key (default: bridge)",
     )
     parser.add_argument(
@@ -169,7 +172,7 @@ def _cmd_bridge_config(args: argparse.Namespace) -> int:
         settings,
         source=str(args.settings) if args.settings else "the default settings",
         namespace=args.namespace,
-        domain=settings.ros_domain_id if args.domain is None else args.domain,
+        domain=settings.ros.ros_domain_id if args.domain is None else args.domain,
         output=args.output,
     )
 
@@ -203,7 +206,7 @@ def _add_bridge_config(sub: argparse._SubParsersAction[argparse.ArgumentParser])
 def _cmd_view(args: argparse.Namespace) -> int:
     from zenoh_perception.cli import view  # noqa: PLC0415
 
-    template = args.debug_image_key or load_settings(args.settings).debug_image_key
+    template = args.debug_image_key or load_settings(args.settings).outputs.debug_image_key
     check_key("--debug-image-key", template.replace("{stream}", "stream"), concrete=True)
     options = view.ViewOptions(
         key=view.view_key(template, args.stream),
@@ -225,7 +228,7 @@ def _add_view(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "q in the window quits.",
     )
     add_zenoh_arguments(parser)
-    default_key = Settings().debug_image_key
+    default_key = Settings().outputs.debug_image_key
     parser.add_argument(
         "--debug-image-key",
         default=None,
@@ -387,7 +390,7 @@ def _add_replay(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     parser.add_argument(
         "--max-frame-bytes",
         type=_max_frame_bytes,
-        default=Settings().max_frame_bytes,
+        default=Settings().limits.max_frame_bytes,
         metavar="N",
         help="largest frame payload sent, bytes: a larger frame stops the replay (exit 2); "
         "match the service's max_frame_bytes (default: %(default)s)",

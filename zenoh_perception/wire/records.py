@@ -133,6 +133,9 @@ class FrameRecord:
     input_key: str = ""
     #: The Zenoh id of the service that answered.
     instance: str = ""
+    #: Where ``tag`` was answered from the coarse first read and the whole frame's read
+    #: selected another tag (or the same one more than half a pixel away): that selection.
+    whole_selected: TagMessage | None = None
 
     def to_msgpack(self) -> bytes:
         record = {
@@ -148,6 +151,8 @@ class FrameRecord:
             "tags": [tag_entry(tag) for tag in self.tags],
             "timing": {key: round(float(value), 4) for key, value in self.timing_ms.items()},
         }
+        if self.whole_selected is not None:
+            record["whole_selected"] = message_fields(self.whole_selected)
         packed: bytes = msgpack.packb(record)
         return packed
 
@@ -222,6 +227,8 @@ def _check_record(record: dict[Any, Any]) -> None:
         if key in record and not isinstance(record[key], str):
             raise _bad(f"{key} is {record[key]!r}, not a string")
     _check_message("selected", record["selected"])
+    if "whole_selected" in record:
+        _check_message("whole_selected", record["whole_selected"])
     tags, timing = record["tags"], record["timing"]
     if not isinstance(tags, list):
         raise _bad(f"tags is {tags!r}, not an array")
