@@ -46,27 +46,22 @@ import numpy as np
 
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.regions import seen_again
-from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import (
+from zenoh_perception.detect.rules import (
     Measures,
     Thresholds,
-    Verifier,
     dark_ring,
-    measure,
     quiet_waived,
     strokes_read,
     typical_quiet,
     veto_reasons,
 )
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.verify import Verifier, measure
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import Frame
-from zenoh_perception_bench.dataset import (
-    TooLargeError,
-    data_folder,
-    frames,
-    load_manifest,
-)
+from zenoh_perception_bench.footage import data_folder, frames
+from zenoh_perception_bench.manifest import TooLargeError, load_manifest
 from zenoh_perception_bench.runners import BGRA8
 from zenoh_perception_bench.scoring import Labels, Score
 
@@ -79,7 +74,7 @@ BARE_EPSILON: Final = 1e-9
 
 @dataclass(frozen=True, slots=True)
 class Rule:
-    """One threshold: the :class:`Thresholds` field, the constant of verify.py, the veto
+    """One threshold: the :class:`Thresholds` field, the constant of rules.py, the veto
     reason it gives, and on which side it vetoes: ``upper``, a value above the threshold
     (at or above for a rule's gate), ``lower``, a value below it."""
 
@@ -95,7 +90,7 @@ class Rule:
     value: Callable[[Measures, Thresholds], float | None]
 
 
-#: Every threshold of verify.py's rules, in the order the rules are checked.
+#: Every threshold of the veto's rules (detect/rules.py), in the order the rules are checked.
 RULES: Final = (
     Rule(
         "min_px_per_cell",

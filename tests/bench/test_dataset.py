@@ -25,16 +25,16 @@ from tests.helpers import cli_command
 from zenoh_perception.cli import main as cli
 from zenoh_perception.settings import Settings
 from zenoh_perception_bench import dataset
-from zenoh_perception_bench.dataset import (
+from zenoh_perception_bench.dataset import evaluate, nothing_found_hint
+from zenoh_perception_bench.footage import frames
+from zenoh_perception_bench.goals import dataset_goals
+from zenoh_perception_bench.manifest import (
     DICTIONARY_PLACEHOLDER,
+    MANIFEST_MAX_BYTES,
     DatasetError,
     Item,
-    evaluate,
-    frames,
     load_manifest,
-    nothing_found_hint,
 )
-from zenoh_perception_bench.goals import dataset_goals
 from zenoh_perception_bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
 from zenoh_perception_bench.runners import BEST, SHOWN, rotation
 from zenoh_perception_bench.scene import render_markers
@@ -392,7 +392,7 @@ def test_a_manifest_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path)
     assert "is not a regular file" in one_line_error(bench(str(tmp_path)))
     huge = tmp_path / "huge.json"
     with huge.open("wb") as file:  # sparse: no disk used
-        file.truncate(dataset.MANIFEST_MAX_BYTES + 1)
+        file.truncate(MANIFEST_MAX_BYTES + 1)
     assert "is larger than" in one_line_error(bench(str(huge)))
     assert "cannot read manifest" in one_line_error(bench(str(tmp_path / "none.json")))
 

@@ -10,10 +10,16 @@ import cv2
 import numpy as np
 import pytest
 
-from zenoh_perception.detect.opencv import OpenCvDetector
-from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import (
+from zenoh_perception.detect.cells import (
     GRID_SIZES,
+    _cell_stats,
+    _layout,
+    decision_margin,
+    dictionary_codes,
+    read_cells,
+)
+from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect.rules import (
     MARGIN_MIN_BITS,
     QUIET_LOCAL_MIN,
     QUIET_MIN,
@@ -22,15 +28,10 @@ from zenoh_perception.detect.verify import (
     TYPICAL_QUIET,
     Measures,
     Thresholds,
-    Verifier,
-    _cell_stats,
-    _layout,
-    decision_margin,
-    dictionary_codes,
-    measure,
-    read_cells,
     veto_reasons,
 )
+from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.verify import Verifier, measure
 from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import mean_side

@@ -23,8 +23,8 @@ from tools.thresholds import (
     truth,
     vetoes,
 )
+from zenoh_perception.detect.rules import GRID_RATIO_MAX, Measures
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import GRID_RATIO_MAX, Measures
 
 RULE = {rule.field: rule for rule in RULES}
 #: A printed marker's numbers: no rule near its threshold, the margin rule not applied.
