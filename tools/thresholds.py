@@ -218,7 +218,7 @@ class Read:
     labels: Labels
     proposals: tuple[Proposal, ...]
     #: the stream's read before this one, when the verifier's memory carries over to it
-    #: (same stream, same frame size, no read with proposals in between), by index
+    #: (the same video, same frame size, no read with proposals in between), by index
     previous: int | None = None
 
 
@@ -228,6 +228,25 @@ def truth(tag_id: int, labels: Labels) -> bool | None:
     if tag_id in labels.markers:
         return True
     return None if labels.unknown_markers > 0 else False
+
+
+def _finder(settings: Settings, dictionary: str) -> tuple[TagFinder, Verifier]:
+    """The service's detector for one stream as the dataset bench builds it, and a verifier
+    of its dictionary (whose ``check`` keeps no memory) to compare the replay with."""
+    detector = make_detector(
+        settings.detector,
+        dictionary,
+        full_scan_period=settings.full_scan_period,
+        second_look=settings.second_look,
+    )
+    verifier = Verifier(dictionary)
+    finder = TagFinder(
+        detector,
+        settings.min_tag_side_px,
+        verifier if settings.verify else None,
+        settings.confirm_frames,
+    )
+    return finder, verifier
 
 
 def collect(
@@ -259,25 +278,15 @@ def collect(
         try:
             for image in frames(item, folder, max_video_frames, settings.max_frame_pixels):
                 for dictionary in tested:
-                    stream = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
-                    if stream not in finders:
-                        detector = make_detector(
-                            settings.detector,
-                            dictionary,
-                            full_scan_period=settings.full_scan_period,
-                            second_look=settings.second_look,
-                        )
-                        verifier = Verifier(dictionary)  # check() keeps no memory
-                        finders[stream] = (
-                            TagFinder(
-                                detector,
-                                settings.min_tag_side_px,
-                                verifier if settings.verify else None,
-                                settings.confirm_frames,
-                            ),
-                            verifier,
-                        )
-                    finder, verifier = finders[stream]
+                    # a video's frames are one stream; each still is read afresh, with no
+                    # read before it, as the dataset bench reads it
+                    stream = f"{item.name}:{dictionary}" if videos else None
+                    if stream is None:
+                        finder, verifier = _finder(settings, dictionary)
+                    else:
+                        if stream not in finders:
+                            finders[stream] = _finder(settings, dictionary)
+                        finder, verifier = finders[stream]
                     # TagFinder.find up to its screen: the detector's read, then the second look
                     # the service takes after the frame's tag, where it takes one
                     gray, found, _ = finder.detect(Frame(image, BGRA8, None, "tool", None))
@@ -285,7 +294,7 @@ def collect(
                         found += finder.look_again()
                     if not found:
                         continue
-                    before = last.get(stream)
+                    before = last.get(stream) if stream is not None else None
                     previous = before[0] if before is not None and before[1] == gray.shape else None
                     shown = reads[previous].proposals if previous is not None else ()
                     proposals = []
@@ -300,7 +309,8 @@ def collect(
                         proposals.append(
                             Proposal(detection, truth(detection.tag_id, item), measures, again)
                         )
-                    last[stream] = (len(reads), gray.shape)
+                    if stream is not None:
+                        last[stream] = (len(reads), gray.shape)
                     reads.append(
                         Read(repos[item.name], dictionary, item, tuple(proposals), previous)
                     )

@@ -12,8 +12,10 @@ and run through the three
 - ``best``: the same with OpenCV's best setting measured
   (:data:`~zenoh_perception_bench.runners.BEST_SETTING`), shown beside, not judged;
 - ``service``: the service's detector with the given settings (default settings unless told),
-  as the service runs it (grey conversion included), one instance per stream: the stills of
-  one dictionary form one stream, each video another.
+  as the service runs it (grey conversion included), one instance per stream: each video
+  (and dictionary) is a stream, and each still is read by runners of its own, so nothing one
+  picture left in a detector (tracks, the second look's schedule, the veto's memory of the
+  frame before) changes how the next is read, whatever the items' order.
 
 Each is scored against the labels (:class:`~zenoh_perception_bench.scoring.Score`; an item
 with no marker is a negative: every id on it is false, in every dictionary the manifest uses).
@@ -61,16 +63,24 @@ from zenoh_perception_bench.scoring import Score, rounded
 
 @dataclass(slots=True)
 class _Streams:
-    """One set of runners (:data:`SHOWN`) per stream key (a dictionary's stills, or a
-    video)."""
+    """The runners (:data:`SHOWN`): one set per video and dictionary, kept over its frames
+    (:meth:`video`); a fresh set for every still (:meth:`still`)."""
 
     settings: Settings
     runners: dict[str, dict[str, Runner]] = field(default_factory=dict)
+    #: stills read so far: which detector goes first on the next one (:func:`rotation`)
+    stills: int = 0
 
-    def pair(self, key: str, dictionary: str) -> dict[str, Runner]:
+    def video(self, name: str, dictionary: str) -> dict[str, Runner]:
+        key = f"{name}:{dictionary}"
         if key not in self.runners:
             self.runners[key] = pair(dictionary, self.settings, best=True)
         return self.runners[key]
+
+    def still(self, dictionary: str) -> tuple[dict[str, Runner], int]:
+        """New runners for one still, and its place in the stills' order."""
+        self.stills += 1
+        return pair(dictionary, self.settings, best=True), self.stills - 1
 
 
 def evaluate(
@@ -141,9 +151,11 @@ def _evaluate_item(
         if first is None:
             first = image
         for dictionary in tested:
-            key = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
-            runners = streams.pair(key, dictionary)
-            for who in rotation(SHOWN, index):
+            if videos:
+                runners, turn = streams.video(item.name, dictionary), index
+            else:
+                runners, turn = streams.still(dictionary)
+            for who in rotation(SHOWN, turn):
                 detections, ms = runners[who].run(image)
                 scores[dictionary][who].add(item.frame(index), detections, ms)
         if kept is not None:
