@@ -26,7 +26,13 @@ its central half. On the scale from the border's median level (0) to the white c
   0.40, the real corpus's at most 0.30), while the striped tags it keeps read 0.65-1.0. Above
   QUIET_MAX no local reading helps: a marker in a shadow stripe with the paper round it lit
   reads like a dark window on a light wall (every white cell darker than the ring), so that
-  case is still vetoed. Nor does the low side veto a large marker, :data:`QUIET_WAIVER_PX_PER_CELL`
+  case is still vetoed. A small marker, under :data:`QUIET_SMALL_PX_PER_CELL` pixels a cell,
+  passes from :data:`QUIET_LOCAL_MIN_SMALL` locally: a blurred ChArUco board's black squares
+  touch its markers' rings at the corners (true board markers at 1.5-1.8 px a cell read 0.30-0.35,
+  locally 0.44-0.49), while the darkest surrounds of that size the local level still vetoes
+  read at most 0.11 on the real corpus and 0.38 among the generator's look-alikes (text on dark
+  ground; up to 0.40 at 3-4 px a cell, where the bound stays 0.5). Nor does the low side veto
+  a large marker, :data:`QUIET_WAIVER_PX_PER_CELL`
   pixels a cell or more, whose cells read as its id by :data:`QUIET_WAIVER_BITS` or more
   against every other id of its dictionary: a marker printed to the edge of its sheet, or cut
   out, on a dark ground (a 5X5 marker on a tree's bark: 0.33, locally 0.44, 145 px a cell,
@@ -117,6 +123,10 @@ STROKES_MAX: Final = 0.45
 #: A quiet zone below QUIET_MIN still passes when its local level (each ring cell against the
 #: marker cells near it) is at least this: the marker lit, the paper around it in a shadow.
 QUIET_LOCAL_MIN: Final = 0.5
+#: ... and, for a marker of fewer than QUIET_SMALL_PX_PER_CELL pixels a cell along its shortest
+#: side, at least QUIET_LOCAL_MIN_SMALL (the bound per cell size: docs/benchmarks.md).
+QUIET_SMALL_PX_PER_CELL: Final = 2.0
+QUIET_LOCAL_MIN_SMALL: Final = 0.42
 #: A quiet zone below both still passes for a marker of at least QUIET_WAIVER_PX_PER_CELL
 #: pixels a cell along its shortest side whose cells read as its id by at least
 #: QUIET_WAIVER_BITS (:func:`decision_margin`, in a dictionary whose codes lie 2 bits apart or
@@ -154,6 +164,8 @@ class Thresholds:
     quiet_min: float = QUIET_MIN
     quiet_max: float = QUIET_MAX
     quiet_local_min: float = QUIET_LOCAL_MIN
+    quiet_small_px_per_cell: float = QUIET_SMALL_PX_PER_CELL
+    quiet_local_min_small: float = QUIET_LOCAL_MIN_SMALL
     quiet_waiver_px_per_cell: float = QUIET_WAIVER_PX_PER_CELL
     quiet_waiver_bits: float = QUIET_WAIVER_BITS
     border_light_max: float = BORDER_LIGHT_MAX
@@ -197,9 +209,20 @@ def quiet_waived(m: Measured, t: Thresholds) -> bool:
     return margin is not None and margin >= t.quiet_waiver_bits
 
 
+def quiet_small(m: Measured, t: Thresholds) -> bool:
+    """Whether the marker has so few pixels a cell that its quiet zone's local level is
+    bounded by ``quiet_local_min_small``."""
+    return m.shortest_side_px < t.quiet_small_px_per_cell * m.cells_across
+
+
+def local_quiet_min(m: Measured, t: Thresholds) -> float:
+    """The least local level of the quiet zone a marker of ``m``'s size needs."""
+    return t.quiet_local_min_small if quiet_small(m, t) else t.quiet_local_min
+
+
 def dark_ring(m: Measured, t: Thresholds) -> bool:
     """Whether the quiet zone reads dark on the whole marker's scale and on the local one."""
-    return m.quiet < t.quiet_min and m.quiet_local < t.quiet_local_min
+    return m.quiet < t.quiet_min and m.quiet_local < local_quiet_min(m, t)
 
 
 def strokes_read(m: Measured, t: Thresholds) -> bool:
