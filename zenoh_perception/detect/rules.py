@@ -32,14 +32,13 @@ its central half. On the scale from the border's median level (0) to the white c
   locally 0.44-0.49), while the darkest surrounds of that size the local level still vetoes
   read at most 0.11 on the real corpus and 0.38 among the generator's look-alikes (text on dark
   ground; up to 0.40 at 3-4 px a cell, where the bound stays 0.5). Nor does the low side veto
-  a large marker, :data:`QUIET_WAIVER_PX_PER_CELL`
-  pixels a cell or more, whose cells read as its id by :data:`QUIET_WAIVER_BITS` or more
-  against every other id of its dictionary: a marker printed to the edge of its sheet, or cut
-  out, on a dark ground (a 5X5 marker on a tree's bark: 0.33, locally 0.44, 145 px a cell,
-  6.9 bits). The dark patches the low side is for are smaller: every false id on the real
-  corpus has at most 12 px a cell (those the low side vetoes, 7 px and 1.65 bits); the
-  generator draws codes on dark ground as look-alikes, clean to the last bit, up to 46 px a
-  cell in its HD1080 set;
+  a large marker, :data:`QUIET_WAIVER_PX_PER_CELL` pixels a cell or more, whose cells read as
+  its id by :data:`QUIET_WAIVER_BITS` or more against every other id of its dictionary: a
+  marker printed to the edge of its sheet, or cut out, on a dark ground (a 5X5 marker on a
+  tree's bark: 0.33, locally 0.44, 145 px a cell, 6.9 bits). The dark patches the low side is
+  for are smaller: every false id on the real corpus has at most 12 px a cell (those the low
+  side vetoes, 7 px and 1.65 bits); the generator draws codes on dark ground as look-alikes,
+  clean to the last bit, up to 46 px a cell in its HD1080 set;
 - ``border``: a marker's border is dark all round. At most :data:`BORDER_LIGHT_MAX` of its
   border cells may be nearer the white level than the border's;
 - ``grid``: the quad read on the grids of the families with more cells (up to 7 inner cells
