@@ -23,6 +23,8 @@ from typing import Any
 import pytest
 import zenoh
 
+from zenoh_perception.detect.types import Detector
+from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.settings import Settings
 from zenoh_perception_bench._loopback import free_port, loopback_config, loopback_endpoint
 
@@ -289,7 +291,7 @@ def json_objects(text: str) -> list[dict[str, object]]:
 
 #: Settings of a service with a stream per camera: ``cams/<name>/image`` answered on
 #: ``cams/<name>/...``.
-STREAMS = Settings(
+STREAMS = Settings.from_flat(
     stats_interval_s=0,
     input_key="cams/*/image",
     compressed_input_key="",
@@ -298,3 +300,8 @@ STREAMS = Settings(
     debug_image_key="cams/{stream}/debug",
     detections_key="cams/{stream}/detections",
 )
+
+
+def pipeline_of(settings: Settings, detector: Detector | None = None) -> Pipeline:
+    """The pipeline the service builds for ``settings`` (its detection and selection)."""
+    return Pipeline(settings.detection, settings.selection, detector)

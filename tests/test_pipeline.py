@@ -9,9 +9,10 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from tests.helpers import pipeline_of
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
-from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
+from zenoh_perception.pipeline import TagFinder, intrinsics_from_settings, observe
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import closeness_from_area
 from zenoh_perception.tags.pose import Intrinsics
@@ -35,7 +36,7 @@ def _frames(count: int, first: int) -> list[tuple[bytes, bytes]]:
 
 
 def test_frames_of_ever_new_sizes_do_not_grow_memory() -> None:
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     warm_up, measured = _frames(10, 0), _frames(120, 10)
     tracemalloc.start()
     try:
@@ -66,7 +67,7 @@ TWO_TAGS = [(7, _square(40, 40, 200)), (3, _square(300, 220, 40))]
 
 
 def test_every_tag_is_observed_and_the_closest_selected() -> None:
-    analysis = Pipeline(Settings()).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings()).process(_frame(TWO_TAGS))
     tags = {tag.tag_id: tag for tag in analysis.tags}
     assert sorted(tags) == [3, 7]
     assert (tags[7].x, tags[7].y) == pytest.approx((139.5, 139.5), abs=0.75)
@@ -78,7 +79,7 @@ def test_every_tag_is_observed_and_the_closest_selected() -> None:
 
 
 def test_each_tag_names_its_dictionary_and_several_are_read_at_once() -> None:
-    assert {t.dictionary for t in Pipeline(Settings()).process(_frame(TWO_TAGS)).tags} == {
+    assert {t.dictionary for t in pipeline_of(Settings()).process(_frame(TWO_TAGS)).tags} == {
         "DICT_4X4_50"
     }
     meta = RawFrameMeta(640, 480)
@@ -87,28 +88,28 @@ def test_each_tag_names_its_dictionary_and_several_are_read_at_once() -> None:
     )
     both = np.minimum(render_markers(640, 480, TWO_TAGS[:1]), apriltag)
     frame = decode_raw_frame(both.tobytes(), meta.to_msgpack())
-    pipeline = Pipeline(Settings(dictionary="DICT_APRILTAG_16h5, DICT_4X4_50"))
+    pipeline = pipeline_of(Settings.from_flat(dictionary="DICT_APRILTAG_16h5, DICT_4X4_50"))
     found = sorted((t.tag_id, t.dictionary) for t in pipeline.process(frame).tags)
     assert found == [(7, "DICT_4X4_50"), (23, "DICT_APRILTAG_16h5")]
 
 
 def test_the_center_policy_selects_the_tag_on_the_centre() -> None:
-    analysis = Pipeline(Settings(policy="center")).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings.from_flat(policy="center")).process(_frame(TWO_TAGS))
     assert analysis.selected.tag_id == 3
 
 
 def test_no_tag_selects_the_dummy() -> None:
-    analysis = Pipeline(Settings()).process(_frame([]))
+    analysis = pipeline_of(Settings()).process(_frame([]))
     assert (analysis.tags, analysis.selected) == ((), NO_TAG)
 
 
 def test_tags_smaller_than_min_tag_side_px_are_left_out() -> None:
-    analysis = Pipeline(Settings(min_tag_side_px=60.0)).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(Settings.from_flat(min_tag_side_px=60.0)).process(_frame(TWO_TAGS))
     assert [tag.tag_id for tag in analysis.tags] == [7]
 
 
 def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None:
-    settings = Settings(
+    settings = Settings.from_flat(
         metric="distance",
         max_range_m=4.0,
         tag_sizes=((7, 0.5),),
@@ -117,7 +118,7 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
         camera_cx=319.5,
         camera_cy=239.5,
     )
-    analysis = Pipeline(settings).process(_frame(TWO_TAGS))
+    analysis = pipeline_of(settings).process(_frame(TWO_TAGS))
     tags = {tag.tag_id: tag for tag in analysis.tags}
     # 200 px for 0.5 m at fx = 500: 1.25 m in front of the camera, a little to the side
     assert tags[7].tvec is not None and tags[7].tvec[2] == pytest.approx(1.25, rel=0.02)
@@ -129,7 +130,7 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
 
 
 def test_the_intrinsics_may_change_at_run_time() -> None:
-    pipeline = Pipeline(Settings(tag_size_m=0.2))
+    pipeline = pipeline_of(Settings.from_flat(tag_size_m=0.2))
     assert pipeline.intrinsics is None
     assert pipeline.process(_frame(TWO_TAGS)).tags[0].distance_m is None
     pipeline.intrinsics = Intrinsics(500.0, 500.0, 319.5, 239.5)
@@ -151,7 +152,9 @@ class _Fixed(Detector):
 def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() -> None:
     quad = _square(10, 10, 20).astype(np.float32)
     detector = _Fixed(Detection(42, quad))
-    analysis = Pipeline(Settings(verify=False), detector).process(_frame([], width=320))
+    analysis = pipeline_of(Settings.from_flat(verify=False), detector).process(
+        _frame([], width=320)
+    )
     assert detector.frames == [(240, 320)]
     (tag,) = analysis.tags
     assert (tag.tag_id, tag.x, tag.y, tag.area_px) == (42, 20.0, 20.0, 400.0)
@@ -160,10 +163,10 @@ def test_the_given_detector_sees_the_grey_frame_and_its_detections_are_used() ->
 
 def test_observe_is_the_geometry_of_one_detection() -> None:
     detection = Detection(5, _square(100, 100, 64).astype(np.float32))
-    tag = observe(detection, 640, 480, Settings())
+    tag = observe(detection, 640, 480, Settings().selection)
     assert (tag.tag_id, tag.x, tag.y) == (5, 132.0, 132.0)
     assert tag.closeness == pytest.approx(closeness_from_area(64 * 64, 640, 480))
-    assert intrinsics_from_settings(Settings()) is None
+    assert intrinsics_from_settings(Settings().selection) is None
 
 
 def test_tag_finder_filters_by_side_and_times_the_conversion() -> None:
@@ -186,7 +189,7 @@ def test_begin_judges_only_the_selected_tag_and_finish_the_others(
         return check(self, gray, detection)
 
     monkeypatch.setattr(Verifier, "check", counted)
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     pending = pipeline.begin(_frame(TWO_TAGS))
     assert pending.selected.tag_id == 7
     assert judged == [7]  # the closest, kept: the tag is known before 3 is read
@@ -206,10 +209,10 @@ def _lookalikes_and_a_tag() -> Frame:
 
 
 def test_a_vetoed_candidate_hands_the_selection_to_the_next() -> None:
-    unverified = Pipeline(Settings(verify=False)).process(_lookalikes_and_a_tag())
+    unverified = pipeline_of(Settings.from_flat(verify=False)).process(_lookalikes_and_a_tag())
     # without the veto a look-alike, closer than the tag, would be selected
     assert unverified.selected.tag_id != 3 and len(unverified.tags) > 1
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     pending = pipeline.begin(_lookalikes_and_a_tag())
     assert pending.selected.tag_id == 3
     analysis = pending.finish()
@@ -221,21 +224,21 @@ def test_a_vetoed_candidate_hands_the_selection_to_the_next() -> None:
 @pytest.mark.parametrize("policy", ["closest", "center"])
 def test_begin_selects_what_the_whole_frame_screened_selects(policy: str) -> None:
     rng = np.random.default_rng(3)
-    settings = Settings(policy=policy)
-    staged, whole = Pipeline(settings), Pipeline(settings)
+    settings = Settings.from_flat(policy=policy)
+    staged, whole = pipeline_of(settings), pipeline_of(settings)
     for kind in ("keys", "text", "tiles", "other_family"):
         frame = Frame(
             lookalike_frame(kind, "DICT_4X4_50", rng), ENCODINGS["bgra8"], None, "test", None
         )
         found, _ = whole.find(frame)  # every detection screened, then selected
         expected = selected_message(
-            tuple(observe(d, 640, 480, settings) for d in found), 640, 480, Policy(policy)
+            tuple(observe(d, 640, 480, settings.selection) for d in found), 640, 480, Policy(policy)
         )
         assert staged.begin(frame).selected == expected
 
 
 def _opencv_corners(frame: Frame) -> dict[int, npt.NDArray[np.float32]]:
-    analysis = Pipeline(Settings(refine_corners=False)).process(frame)
+    analysis = pipeline_of(Settings.from_flat(refine_corners=False)).process(frame)
     return {tag.tag_id: np.array(tag.corners, np.float32) for tag in analysis.tags}
 
 
@@ -244,7 +247,7 @@ def test_published_corners_are_refined_and_the_tags_found_are_opencv_s() -> None
     truth = dict(TWO_TAGS)
     frame = _frame(TWO_TAGS)
     opencv = _opencv_corners(frame)
-    analysis = Pipeline(Settings()).process(frame)
+    analysis = pipeline_of(Settings()).process(frame)
     assert sorted(tag.tag_id for tag in analysis.tags) == sorted(opencv)
     for tag in analysis.tags:
         refined = np.array(tag.corners)
@@ -257,15 +260,19 @@ def test_refinement_moves_a_detector_s_corners_onto_the_edges_unless_switched_of
     truth = _square(100, 100, 120)
     frame = _frame([(7, truth)])
     given = (truth + 0.7).astype(np.float32)  # a detector's corners, 0.7 px off
-    refined = Pipeline(Settings(verify=False), _Fixed(Detection(7, given))).process(frame)
+    refined = pipeline_of(Settings.from_flat(verify=False), _Fixed(Detection(7, given))).process(
+        frame
+    )
     assert np.linalg.norm(np.array(refined.tags[0].corners) - truth, axis=1).max() < 0.1
-    unrefined = Pipeline(Settings(verify=False, refine_corners=False), _Fixed(Detection(7, given)))
+    unrefined = pipeline_of(
+        Settings.from_flat(verify=False, refine_corners=False), _Fixed(Detection(7, given))
+    )
     assert unrefined.process(frame).tags[0].corners == tuple(map(tuple, given.tolist()))
 
 
 def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric() -> None:
     camera = Intrinsics(500.0, 500.0, 319.5, 239.5)
-    settings = Settings(
+    settings = Settings.from_flat(
         metric="distance",
         tag_size_m=0.2,
         camera_fx=camera.fx,
@@ -280,8 +287,8 @@ def test_an_ambiguous_pose_is_kept_but_not_ranked_by_under_the_distance_metric()
         )
         return Detection(1, corners.astype(np.float32))
 
-    far = observe(seen(8.0, 10.0), 640, 480, settings, camera)
+    far = observe(seen(8.0, 10.0), 640, 480, settings.selection, camera)
     assert far.ambiguous and far.pose_errors is not None and far.distance_m is not None
     assert far.metric == Metric.AREA
-    near = observe(seen(1.0, 40.0), 640, 480, settings, camera)
+    near = observe(seen(1.0, 40.0), 640, 480, settings.selection, camera)
     assert not near.ambiguous and near.metric == Metric.DISTANCE

@@ -285,8 +285,10 @@ def run_load(
 def main(config: LoadConfig, *, as_json: bool = False) -> int:
     """Flood a service started in this process and print what it did; 1 when a check fails."""
     endpoint = loopback_endpoint()
-    settings = Settings(stats_interval_s=0.0)
-    gate = HoldableDetector(make_detector(settings.detector, settings.dictionary))
+    settings = Settings.from_flat(stats_interval_s=0.0)
+    gate = HoldableDetector(
+        make_detector(settings.detection.detector, settings.detection.dictionary)
+    )
     with (
         zenoh.open(loopback_config(listen=[endpoint])) as service_session,
         PerceptionService(service_session, settings, detector=gate),

@@ -160,7 +160,7 @@ class _ProfiledSession:
 
 def main(frames: int) -> dict[str, Any]:
     endpoint = loopback_endpoint()
-    settings = Settings(stats_interval_s=0)
+    settings = Settings.from_flat(stats_interval_s=0)
     counter = Counter()
     with (
         zenoh.open(loopback_config(listen=[endpoint])) as session,

@@ -12,7 +12,7 @@ import msgpack
 import numpy as np
 
 from zenoh_perception.errors import FrameDecodeError
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Limits
 from zenoh_perception.wire.frames import (
     MAX_ATTACHMENT_BYTES,
     MAX_DIMENSION,
@@ -320,7 +320,7 @@ def expected_outcome(case: Case) -> str:
     Runs the project's decoders, as the service does. Any exception other than
     FrameDecodeError propagates (with the payload's kind in the traceback): that is a bug.
     """
-    limits = Settings()
+    limits = Limits()
     try:
         check_payload_size(len(case.payload), limits.max_frame_bytes)
         if case.attachment is not None:

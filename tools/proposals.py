@@ -228,18 +228,19 @@ def truth(tag_id: int, labels: Labels) -> bool | None:
 def _finder(settings: Settings, dictionary: str) -> tuple[TagFinder, Verifier]:
     """The service's detector for one stream as the dataset bench builds it, and a verifier
     of its dictionary (whose ``check`` keeps no memory) to compare the replay with."""
+    detection = settings.detection
     detector = make_detector(
-        settings.detector,
+        detection.detector,
         dictionary,
-        full_scan_period=settings.full_scan_period,
-        second_look=settings.second_look,
+        full_scan_period=detection.full_scan_period,
+        second_look=detection.second_look,
     )
     verifier = Verifier(dictionary)
     finder = TagFinder(
         detector,
-        settings.min_tag_side_px,
-        verifier if settings.verify else None,
-        settings.confirm_frames,
+        detection.min_tag_side_px,
+        verifier if detection.verify else None,
+        detection.confirm_frames,
     )
     return finder, verifier
 
@@ -271,7 +272,7 @@ def collect(
         tested = dictionaries if item.negative else [item.dictionary]
         videos = item.kind != "image"
         try:
-            for image in frames(item, folder, max_video_frames, settings.max_frame_pixels):
+            for image in frames(item, folder, max_video_frames, settings.limits.max_frame_pixels):
                 for dictionary in tested:
                     # a video's frames are one stream; each still is read afresh, with no
                     # read before it, as the dataset bench reads it

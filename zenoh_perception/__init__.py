@@ -7,7 +7,7 @@ layer and the layers above it in this list:
 - ``tags``      what a detection means: centre, closeness, pose, the one tag a frame reports
 - ``wire``      bytes to objects and back: camera frames, ROS 2 types, tag CDR, record, debug image
 - ``detect``    markers in a grey image (OpenCV's ArUco detector decides every one)
-- ``settings``  the one frozen settings dataclass, its TOML file and its flags
+- ``settings``  the frozen settings, a section per component, its TOML file and its flags
 - ``pipeline``  frame -> grey -> detections -> tags -> selection, no I/O
 - ``service``   the Zenoh node (subscriber, worker, publishers, status, liveliness) and its parts
 - ``camera``    what publishes frames when no ZED does: shared memory, replay

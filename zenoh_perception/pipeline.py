@@ -15,7 +15,7 @@ from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.rules import REASONS
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import DetectorSettings, Selection
 from zenoh_perception.tags.corners import marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (
     closeness_from_area,
@@ -28,7 +28,6 @@ from zenoh_perception.tags.pose import Intrinsics, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
     Metric,
-    Policy,
     TagMessage,
     TagObservation,
     selected_message,
@@ -60,7 +59,7 @@ def observe(
     detection: Detection,
     width: int,
     height: int,
-    settings: Settings,
+    selection: Selection,
     intrinsics: Intrinsics | None = None,
 ) -> TagObservation:
     """Geometry of one detection: centre, area, closeness and (when possible) pose.
@@ -72,15 +71,15 @@ def observe(
     area = polygon_area(detection.corners)
     closeness = closeness_from_area(area, width, height)
     corners = tuple(map(tuple, np.asarray(detection.corners, np.float64).tolist()))
-    size = settings.tag_size_for(detection.tag_id)
+    size = selection.tag_size_for(detection.tag_id)
     pose = estimate_pose(detection.corners, size, intrinsics) if intrinsics is not None else None
     if pose is None:
         return TagObservation(
             detection.tag_id, x, y, closeness, corners, area, dictionary=detection.dictionary
         )
     metric = Metric.AREA
-    if settings.metric == Metric.DISTANCE and not pose.ambiguous:
-        closeness = closeness_from_distance(pose.distance_m, settings.max_range_m)
+    if selection.metric is Metric.DISTANCE and not pose.ambiguous:
+        closeness = closeness_from_distance(pose.distance_m, selection.max_range_m)
         metric = Metric.DISTANCE
     return TagObservation(
         detection.tag_id,
@@ -107,12 +106,11 @@ def refined(gray: Gray, detection: Detection) -> Detection:
     return replace(detection, corners=corners.astype(np.float32))
 
 
-def intrinsics_from_settings(settings: Settings) -> Intrinsics | None:
-    if not settings.has_intrinsics:
+def intrinsics_from_settings(selection: Selection) -> Intrinsics | None:
+    s = selection
+    if not s.has_intrinsics:
         return None
-    return Intrinsics(
-        settings.camera_fx, settings.camera_fy, settings.camera_cx, settings.camera_cy
-    )
+    return Intrinsics(s.camera_fx, s.camera_fy, s.camera_cx, s.camera_cy)
 
 
 class TagFinder:
@@ -201,7 +199,7 @@ class TagFinder:
         self.vetoed.update(reasons)
 
 
-def detector_for(settings: Settings, *, wary: bool = False) -> Detector:
+def detector_for(settings: DetectorSettings, *, wary: bool = False) -> Detector:
     """The detector the settings name: what :class:`Pipeline` runs unless given another (the
     service's deadline runs it in a child process, built there by this function). ``wary``:
     for a detector that replaces one whose read stalled (see
@@ -224,18 +222,23 @@ class Pipeline(TagFinder):
     image size.
     """
 
-    def __init__(self, settings: Settings, detector: Detector | None = None) -> None:
-        self.settings = settings
+    def __init__(
+        self,
+        detection: DetectorSettings,
+        selection: Selection,
+        detector: Detector | None = None,
+    ) -> None:
+        self.detection, self.selection = detection, selection
         if detector is None:
-            detector = detector_for(settings)
-        verifier = Verifier(settings.dictionary) if settings.verify else None
-        super().__init__(detector, settings.min_tag_side_px, verifier, settings.confirm_frames)
+            detector = detector_for(detection)
+        verifier = Verifier(detection.dictionary) if detection.verify else None
+        super().__init__(detector, detection.min_tag_side_px, verifier, detection.confirm_frames)
         # one attribute, replaced whole: a frame never sees intrinsics with another's size
         self._camera: tuple[Intrinsics | None, tuple[int, int] | None] = (
-            intrinsics_from_settings(settings),
+            intrinsics_from_settings(selection),
             None,
         )
-        self._policy = Policy(settings.policy)
+        self._policy = selection.policy
 
     @property
     def intrinsics(self) -> Intrinsics | None:
@@ -266,12 +269,12 @@ class Pipeline(TagFinder):
         if mismatch:
             intrinsics = None
 
-        refine = self.settings.refine_corners
+        refine = self.detection.refine_corners
 
         def observed(detection: Detection) -> TagObservation:
             if refine:  # what is published is measured on refined corners
                 detection = refined(gray, detection)
-            return observe(detection, width, height, self.settings, intrinsics)
+            return observe(detection, width, height, self.selection, intrinsics)
 
         if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second

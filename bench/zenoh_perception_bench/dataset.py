@@ -74,13 +74,13 @@ class _Streams:
     def video(self, name: str, dictionary: str) -> dict[str, Runner]:
         key = f"{name}:{dictionary}"
         if key not in self.runners:
-            self.runners[key] = pair(dictionary, self.settings, best=True)
+            self.runners[key] = pair(dictionary, self.settings.detection, best=True)
         return self.runners[key]
 
     def still(self, dictionary: str) -> tuple[dict[str, Runner], int]:
         """New runners for one still, and its place in the stills' order."""
         self.stills += 1
-        return pair(dictionary, self.settings, best=True), self.stills - 1
+        return pair(dictionary, self.settings.detection, best=True), self.stills - 1
 
 
 def evaluate(
@@ -146,7 +146,7 @@ def _evaluate_item(
     kept: list[Image] | None = [] if e2e and videos and not item.negative else None
     first: Image | None = None
     for index, image in enumerate(
-        frames(item, data, max_video_frames, streams.settings.max_frame_pixels)
+        frames(item, data, max_video_frames, streams.settings.limits.max_frame_pixels)
     ):
         if first is None:
             first = image
@@ -289,9 +289,9 @@ def _report(
 
     report: dict[str, Any] = {
         "settings": {
-            "detector": settings.detector,
-            "full_scan_period": settings.full_scan_period,
-            "max_frame_pixels": settings.max_frame_pixels,
+            "detector": settings.detection.detector,
+            "full_scan_period": settings.detection.full_scan_period,
+            "max_frame_pixels": settings.limits.max_frame_pixels,
         },
         "max_video_frames": max_frames,
         "items": [{**r, **{who: r[who].summary() for who in SHOWN}} for r in rows],

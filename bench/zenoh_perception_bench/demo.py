@@ -38,6 +38,7 @@ from zenoh_perception.service.session import check_transport_limit
 from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.settings import FRAME_LIMITS_HINT, Settings
+from zenoh_perception.tags.selection import Policy
 from zenoh_perception.wire.frames import RawFrameMeta, check_payload_size, encode_image_cdr
 from zenoh_perception.wire.records import decode_record
 from zenoh_perception.wire.stream_keys import has_wildcard
@@ -275,10 +276,10 @@ class OpenCvDefault:
     record would report them (the selected tag by the service's policy: the largest for
     ``closest``, the nearest the centre for ``center``)."""
 
-    def __init__(self, settings: Settings) -> None:
-        self._dictionaries = tuple(dictionary_names(settings.dictionary))
+    def __init__(self, dictionary: str, policy: Policy) -> None:
+        self._dictionaries = tuple(dictionary_names(dictionary))
         self._detector = aruco_detector(self._dictionaries, cv2.aruco.DetectorParameters())
-        self._centre = settings.policy == "center"
+        self._centre = policy is Policy.CENTER
 
     def record(self, image: npt.NDArray[np.uint8]) -> dict[str, Any]:
         grey = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
@@ -383,40 +384,44 @@ def main(
     """Run camera (+ service + echo unless ``camera_only``) until ``stop`` or ``limit`` frames.
 
     Raises:
-        SettingsError: a frame of ``resolution`` exceeds ``settings.max_frame_bytes``, or that
-            limit exceeds Zenoh's message limit; ``input_key``, which the camera publishes on,
+        SettingsError: a frame of ``resolution`` exceeds ``max_frame_bytes``, or that limit
+            exceeds Zenoh's message limit; ``input_key``, which the camera publishes on,
             holds a wildcard or is a list.
         SessionError: the Zenoh session cannot be opened.
 
     """
-    if not isinstance(settings.input_key, str) or has_wildcard(settings.input_key):
-        key = settings.input_key
+    if not isinstance(settings.inputs.input_key, str) or has_wildcard(settings.inputs.input_key):
+        key = settings.inputs.input_key
         shown, what = (key, "wildcard") if isinstance(key, str) else (list(key), "list")
         msg = (
             f"input_key = {shown!r}: the demo's camera publishes on it, so it must be one "
             f"camera's key (e.g. 'rover/front/image'); run the service on the {what} apart"
         )
         raise SettingsError(msg)
-    input_key = settings.input_key
+    input_key = settings.inputs.input_key
     if not camera_only:
-        check_transport_limit(conf, settings)
+        check_transport_limit(conf, settings.limits)
     stop = stop or threading.Event()
     width, height = RESOLUTIONS[resolution]
     # Every frame holds at least its BGRA pixels: refuse before anything starts.
     check_frame_bytes(
-        width * height * 4, settings.max_frame_bytes, f"a {resolution} BGRA demo frame"
+        width * height * 4, settings.limits.max_frame_bytes, f"a {resolution} BGRA demo frame"
     )
     # what the rover passes, drawn before the service starts: too long to draw between frames
-    first = dictionary_names(settings.dictionary)[0]
+    first = dictionary_names(settings.detection.dictionary)[0]
     bands = () if adversaries else surroundings.layers(first, width, height)
     scenes = drive_forever(
-        resolution, fps, settings.dictionary, adversaries=adversaries, bands=bands
+        resolution, fps, settings.detection.dictionary, adversaries=adversaries, bands=bands
     )
     # the truth of the frames put, by stamp, and what OpenCV's default read on them, until
     # their record is shown
     truths: dict[int, tuple[Scene, Agreement]] = {}
     lock = threading.Lock()
-    opencv = None if camera_only else OpenCvDefault(settings)
+    opencv = (
+        None
+        if camera_only
+        else OpenCvDefault(settings.detection.dictionary, settings.selection.policy)
+    )
 
     def remember(stamp_ns: int, scene: Scene) -> None:
         assert opencv is not None  # remembered only beside the service
@@ -438,7 +443,7 @@ def main(
                 stop=stop,
                 limit=limit,
                 shm=shm,
-                max_frame_bytes=settings.max_frame_bytes,
+                max_frame_bytes=settings.limits.max_frame_bytes,
                 on_frame=None if camera_only else remember,
             )
 
@@ -472,7 +477,7 @@ def main(
             print("\n".join(lines), file=out, flush=True)
 
         with PerceptionService(session, settings):
-            subscriber = session.declare_subscriber(settings.record_key, show)
+            subscriber = session.declare_subscriber(settings.outputs.record_key, show)
             sent = 0
             try:
                 sent = camera()

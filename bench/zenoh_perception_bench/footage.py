@@ -91,7 +91,7 @@ def _read_image(path: Path, max_pixels: int) -> Image:
     return _bgra(image)
 
 
-DEFAULT_MAX_PIXELS: Final = Settings().max_frame_pixels
+DEFAULT_MAX_PIXELS: Final = Settings().limits.max_frame_pixels
 
 
 def frames(

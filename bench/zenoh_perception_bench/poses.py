@@ -184,8 +184,7 @@ class Methods:
         focal = CAMERAS[resolution][2]
         camera = camera_matrix(resolution)
         self.intrinsics = Intrinsics(focal, focal, float(camera[0, 2]), float(camera[1, 2]))
-        settings = replace(
-            Settings(),
+        settings = Settings.from_flat(
             detector="opencv",
             dictionary=DICTIONARY,
             tag_size_m=SIZE_M,
@@ -194,7 +193,7 @@ class Methods:
             camera_cx=self.intrinsics.cx,
             camera_cy=self.intrinsics.cy,
         )
-        self.pipeline = Pipeline(settings)
+        self.pipeline = Pipeline(settings.detection, settings.selection)
         dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
         self.detectors: dict[str, cv2.aruco.ArucoDetector] = {}
         for name, method in REFINEMENTS.items():

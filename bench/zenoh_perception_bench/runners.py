@@ -28,6 +28,7 @@ from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.pipeline import TagFinder
 from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import DetectorSettings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception_bench.framesets import BoardFrame
 from zenoh_perception_bench.progress import Progress, tick
@@ -137,7 +138,7 @@ class Project:
         return detections, elapsed
 
 
-def pair(dictionary: str, settings: Settings, *, best: bool = False) -> dict[str, Runner]:
+def pair(dictionary: str, settings: DetectorSettings, *, best: bool = False) -> dict[str, Runner]:
     """:data:`PAIR`: OpenCV's default the way a user runs it, and the service's detector with
     ``settings`` as the service runs it; with ``best``, :data:`SHOWN`: OpenCV's best setting
     between them."""
@@ -188,7 +189,7 @@ def board_case(
     """OpenCV's default and the service's detector (``settings``, default: the service's
     defaults) on the board frames, one after the other as a storm, then on ``after``, a
     good frame: per frame the milliseconds and tags found of each; the good frame's time."""
-    runners = pair(DICTIONARY, settings if settings is not None else Settings())
+    runners = pair(DICTIONARY, (settings if settings is not None else Settings()).detection)
     rows = []
     for index, frame in enumerate(frames):
         row: dict[str, Any] = {"kind": frame.kind, "square_px": frame.square}

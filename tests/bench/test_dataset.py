@@ -71,9 +71,9 @@ def test_every_item_is_scored_for_both_detectors(corpus: Path) -> None:
     assert groups["stills"]["service"]["buckets"][size_bucket(100.0)] == 2  # 100, 120 px
     settings = Settings()
     assert report["settings"] == {
-        "detector": settings.detector,
-        "full_scan_period": settings.full_scan_period,
-        "max_frame_pixels": settings.max_frame_pixels,
+        "detector": settings.detection.detector,
+        "full_scan_period": settings.detection.full_scan_period,
+        "max_frame_pixels": settings.limits.max_frame_pixels,
     }
     # the negative's false id fails that goal; every other goal passes
     failed = [g["goal"] for g in report["goals"] if not g["pass"]]

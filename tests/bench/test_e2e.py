@@ -3,6 +3,7 @@ floor: every frame answered, recall and timing from the records, passes pooled."
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -49,7 +50,8 @@ def test_the_sets_go_through_service_processes_in_passes(quick: BenchRun) -> Non
             assert summary["found"] > 0
             ratios = entry["pass_ratios"][who]
             assert len(ratios) == passes
-            assert all(r > 0.0 for r in ratios)
+            # (service - floor) / OpenCV: its sign is the machine's load, not the code's
+            assert all(math.isfinite(r) for r in ratios)
             # the overhead: e2e minus the service's own detect_ms, frame by frame
             assert 0.0 < summary["detect_median_ms"] < summary["p99_ms"]
             assert summary["overhead_median_ms"] is not None
@@ -103,7 +105,7 @@ def test_generated_frames_are_never_abandoned_for_a_busy_machine(
     with pytest.raises(_StartedError):
         lockstep(["opencv"], [scene], None, "x")
     assert given == [("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS))]
-    assert 20 * Settings().frame_deadline_ms <= LOCKSTEP_DEADLINE_MS
+    assert 20 * Settings().limits.frame_deadline_ms <= LOCKSTEP_DEADLINE_MS
 
 
 def test_a_record_s_tags_become_detections() -> None:

@@ -73,7 +73,7 @@ def test_baseline_and_project_find_the_tags_of_a_clean_frame() -> None:
 def test_the_pair_runs_the_service_s_detector_with_its_settings() -> None:
     generator = SceneGenerator(CameraModel.named("VGA"), seed=2, effects=Effects.clean())
     image = generator.random_scene(3, 0).image
-    runners = pair("DICT_4X4_50", Settings(min_tag_side_px=1000.0))
+    runners = pair("DICT_4X4_50", Settings.from_flat(min_tag_side_px=1000.0).detection)
     assert tuple(runners) == PAIR
     assert runners["opencv"].run(image)[0]  # OpenCV's default sees the tags...
     assert runners["service"].run(image)[0] == []  # ...the service drops them: too small
@@ -130,7 +130,7 @@ def test_the_best_setting_finds_a_tag_too_small_for_the_default() -> None:
 
 
 def test_with_best_the_runners_are_opencv_s_default_its_best_setting_and_the_service() -> None:
-    runners = pair("DICT_4X4_50", Settings(), best=True)
+    runners = pair("DICT_4X4_50", Settings().detection, best=True)
     assert tuple(runners) == SHOWN == ("opencv", BEST, "service")
     assert isinstance(runners[BEST], Best)
     assert type(runners["opencv"]) is Baseline

@@ -20,7 +20,7 @@ from zenoh_perception.wire.messages import IMAGE_TYPE
 
 
 def test_cameras_publish_where_the_service_reads() -> None:
-    assert Settings().input_key == DEFAULT_KEY
+    assert Settings().inputs.input_key == DEFAULT_KEY
     assert ReplayOptions().key == DEFAULT_KEY
 
 

@@ -7,7 +7,6 @@ import io
 import itertools
 import re
 import threading
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -119,7 +118,9 @@ def test_opencv_default_reads_what_the_service_would_be_compared_with() -> None:
     scene = SceneGenerator(
         CameraModel.named("VGA"), seed=1, effects=Effects.clean()
     ).scene_from_poses([MarkerPose(3, 0.2, (-0.3, 0.0, 1.5)), MarkerPose(9, 0.1, (0.3, 0.0, 2.0))])
-    record = demo.OpenCvDefault(Settings()).record(scene.image)
+    record = demo.OpenCvDefault(
+        Settings().detection.dictionary, Settings().selection.policy
+    ).record(scene.image)
     assert sorted(t["tag_id"] for t in record["tags"]) == [3, 9]
     assert record["selected"]["tag_id"] == 3  # the largest: the closest
     result = agreement(record, scene.markers)
@@ -146,7 +147,7 @@ def test_demo_answers_its_frames_and_compares_each_answer_with_the_truth() -> No
     printed = io.StringIO()  # written from a Zenoh thread, read here (each call atomic)
     stop = threading.Event()
     codes: list[int] = []
-    settings = Settings(stats_interval_s=0.0)
+    settings = Settings.from_flat(stats_interval_s=0.0)
 
     def run() -> None:
         codes.append(demo.main(loopback_config(), settings, fps=30.0, stop=stop, out=printed))
@@ -218,7 +219,7 @@ def test_a_frame_over_max_frame_bytes_is_refused_before_anything_starts() -> Non
     check_frame_bytes(1000, 1000, "a frame")
     with pytest.raises(SettingsError, match="max_frame_bytes = 999"):
         check_frame_bytes(1000, 999, "a frame")
-    small = Settings(max_frame_bytes=640 * 480 * 4 - 1)
+    small = Settings.from_flat(max_frame_bytes=640 * 480 * 4 - 1)
     with pytest.raises(SettingsError, match=f"is {640 * 480 * 4} bytes"):
         demo.main(loopback_config(), small, resolution="VGA", limit=1)
 
@@ -230,7 +231,7 @@ def test_a_wildcard_input_key_is_refused_the_camera_publishes_on_it(camera_only:
 
 
 def test_a_list_of_input_keys_is_refused_the_camera_publishes_on_one_key() -> None:
-    cameras = replace(STREAMS, input_key=("cams/front/image", "cams/rear/image"))
+    cameras = STREAMS.with_flat(input_key=("cams/front/image", "cams/rear/image"))
     with pytest.raises(SettingsError, match=r"input_key = \['cams/front/image', 'cams/rear"):
         demo.main(loopback_config(), cameras, limit=1)
 

@@ -21,7 +21,9 @@ from tests.helpers import (
 from zenoh_perception.cli import echo
 from zenoh_perception.cli.echo import Gap, SeqGaps, StreamGaps, listen_key
 from zenoh_perception.errors import SettingsError
+from zenoh_perception.settings import RosTransportKind
 from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 
 
@@ -121,7 +123,7 @@ class _Echo:
 def _record(seq: int) -> bytes:
     tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
     return FrameRecord(
-        seq, "cam", seq, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+        seq, "cam", seq, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, InputKind.RAW
     ).to_msgpack()
 
 
@@ -187,11 +189,14 @@ def test_an_invalid_ros_package_is_refused_before_any_session() -> None:
 
 def test_echo_reads_the_tag_where_the_ros_transport_puts_it() -> None:
     assert echo.RosGraph().tag_key("tag", "mrover") == "tag"
-    rmw = echo.RosGraph("rmw_zenoh", 3, "/rover")
+    rmw = echo.RosGraph(RosTransportKind.RMW_ZENOH, 3, "/rover")
     assert rmw.tag_key("tag", "rover_msgs") == (
         "3/rover/tag/rover_msgs::msg::dds_::StarterProjectTag_/*"
     )
-    for bad in (echo.RosGraph("rmw_zenoh", 233), echo.RosGraph("rmw_zenoh", 0, "rover")):
+    for bad in (
+        echo.RosGraph(RosTransportKind.RMW_ZENOH, 233),
+        echo.RosGraph(RosTransportKind.RMW_ZENOH, 0, "rover"),
+    ):
         with pytest.raises(SettingsError):
             bad.tag_key("tag", "mrover")
     with pytest.raises(SettingsError):

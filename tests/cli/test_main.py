@@ -146,7 +146,7 @@ def test_replay_flags_have_the_camera_defaults() -> None:
     )
     options = replay.options_from_args(args, stderr_is_tty=False)
     assert (options.key, options.compressed) == (DEFAULT_KEY, None)
-    assert args.max_frame_bytes == Settings().max_frame_bytes
+    assert args.max_frame_bytes == Settings().limits.max_frame_bytes
     assert args.wait_for_subscriber is True and args.subscriber_timeout is None
 
 

@@ -15,7 +15,7 @@ from zenoh_perception.settings import Settings
 
 
 def test_the_status_of_a_running_service_is_printed_as_json(endpoint: str) -> None:
-    settings = Settings(stats_interval_s=0.0, policy="center")
+    settings = Settings.from_flat(stats_interval_s=0.0, policy="center")
     with open_session(listen=[endpoint]) as session, PerceptionService(session, settings):
         out = io.StringIO()
         code = status.main(loopback_config(connect=[endpoint]), timeout=2.0, out=out)
@@ -28,18 +28,18 @@ def test_the_status_of_a_running_service_is_printed_as_json(endpoint: str) -> No
 
 
 def test_another_status_key(endpoint: str) -> None:
-    settings = Settings(stats_interval_s=0.0, status_key="rover/perception/status")
+    settings = Settings.from_flat(stats_interval_s=0.0, status_key="rover/perception/status")
     with open_session(listen=[endpoint]) as session, PerceptionService(session, settings):
         out = io.StringIO()
         conf = loopback_config(connect=[endpoint])
         assert status.main(conf, key="rover/perception/status", timeout=2.0, out=out) == 0
     (reply,) = json_objects(out.getvalue())
     assert reply["settings"] == json.loads(json.dumps(settings.as_dict()))
-    assert settings.status_key == "rover/perception/status"
+    assert settings.outputs.status_key == "rover/perception/status"
 
 
 def test_lines_prints_one_compact_object_per_line(endpoint: str) -> None:
-    settings = Settings(stats_interval_s=0.0)
+    settings = Settings.from_flat(stats_interval_s=0.0)
     with open_session(listen=[endpoint]) as session, PerceptionService(session, settings):
         out = io.StringIO()
         code = status.main(loopback_config(connect=[endpoint]), timeout=2.0, lines=True, out=out)

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.helpers import pipeline_of
 from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception_bench.scene import render_markers
@@ -68,8 +68,8 @@ def test_the_pipeline_holds_a_new_tag_and_counts_it() -> None:
     quad = np.array([[200, 150], [300, 150], [300, 250], [200, 250]], np.float64)
     image = render_markers(640, 480, [(7, quad)])
     frame = Frame(image, ENCODINGS["bgra8"], None, "test", None)
-    pipeline = Pipeline(Settings(confirm_frames=2))
+    pipeline = pipeline_of(Settings.from_flat(confirm_frames=2))
     assert pipeline.process(frame).tags == ()
     assert pipeline.vetoed["unconfirmed"] == 1
     assert [t.tag_id for t in pipeline.process(frame).tags] == [7]
-    assert [t.tag_id for t in Pipeline(Settings()).process(frame).tags] == [7]
+    assert [t.tag_id for t in pipeline_of(Settings()).process(frame).tags] == [7]

@@ -12,7 +12,6 @@ from zenoh_perception.detect.opencv import (
     OpenCvDetector,
     aruco_dictionary,
     detections_from_opencv,
-    single_threaded,
 )
 from zenoh_perception.errors import SettingsError
 from zenoh_perception_bench.scene import render_markers
@@ -121,16 +120,6 @@ def test_unknown_dictionaries_are_settings_errors() -> None:
     with pytest.raises(SettingsError):
         OpenCvDetector("DICT_9X9_1")
     assert aruco_dictionary("dict_4x4_50").bytesList.shape[0] == 50
-
-
-def test_single_threaded_restores_opencv_s_thread_count() -> None:
-    before = cv2.getNumThreads()
-    with single_threaded():
-        assert cv2.getNumThreads() == 1
-    assert cv2.getNumThreads() == before
-    with pytest.raises(RuntimeError), single_threaded():
-        raise RuntimeError
-    assert cv2.getNumThreads() == before
 
 
 def _two_families() -> npt.NDArray[np.uint8]:

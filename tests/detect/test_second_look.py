@@ -7,6 +7,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from tests.helpers import pipeline_of
 from zenoh_perception.detect import second_look
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.opencv import OpenCvDetector
@@ -19,7 +20,6 @@ from zenoh_perception.detect.second_look import (
     SecondLook,
 )
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception_bench.scene.lookalikes import lookalike_frame
@@ -85,7 +85,7 @@ def test_beside_a_large_marker_the_look_comes_after_the_frame_s_tag() -> None:
 
 
 def test_the_service_s_tag_does_not_wait_for_a_look_that_cannot_change_it() -> None:
-    pipeline = Pipeline(Settings())
+    pipeline = pipeline_of(Settings())
     pending = pipeline.begin(_bgra(_frame(SMALL, (3, 60, 40, 40))))
     assert pending.selected.tag_id == 3
     detector = pipeline.detector
@@ -120,8 +120,8 @@ def test_a_far_tag_in_a_large_frame_is_read_from_the_candidate_opencv_rejected()
     # in the frame's pixels: the centre of the print (23 px wide, the marker in its middle)
     assert np.allclose(found[0].corners.mean(axis=0), (600 + 11, 300 + 11), atol=1.0)
     tagged = _bgra(frame)
-    assert Pipeline(Settings()).process(tagged).selected.tag_id == 7
-    assert Pipeline(Settings(second_look=False)).process(tagged).selected.tag_id == -1
+    assert pipeline_of(Settings()).process(tagged).selected.tag_id == 7
+    assert pipeline_of(Settings.from_flat(second_look=False)).process(tagged).selected.tag_id == -1
 
 
 def test_a_corrected_read_is_added_only_when_its_cells_read_its_id_clearly(
@@ -228,8 +228,8 @@ def _bgra(gray: Gray) -> Frame:
 
 def test_the_service_reports_a_small_tag_the_default_read_misses() -> None:
     frame = _bgra(_frame(SMALL))
-    assert Pipeline(Settings()).process(frame).selected.tag_id == 7
-    assert Pipeline(Settings(second_look=False)).process(frame).selected.tag_id == -1
+    assert pipeline_of(Settings()).process(frame).selected.tag_id == 7
+    assert pipeline_of(Settings.from_flat(second_look=False)).process(frame).selected.tag_id == -1
 
 
 def test_the_veto_judges_what_the_look_adds() -> None:
@@ -243,8 +243,8 @@ def test_the_veto_judges_what_the_look_adds() -> None:
         default = OpenCvDetector(DICTIONARY).detect(gray)
         added += len(SecondLook((DICTIONARY,)).look(gray, list(default))) - len(default)
         tagged = Frame(frame, ENCODINGS["bgra8"], None, "t", None)
-        with_look = Pipeline(Settings()).process(tagged).tags
-        without = Pipeline(Settings(second_look=False)).process(tagged).tags
+        with_look = pipeline_of(Settings()).process(tagged).tags
+        without = pipeline_of(Settings.from_flat(second_look=False)).process(tagged).tags
         assert [t.tag_id for t in with_look] == [t.tag_id for t in without]
     assert added > 0  # the look did add look-alikes here
 

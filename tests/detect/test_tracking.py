@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections import Counter
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -60,6 +61,21 @@ def test_a_still_followed_scene_is_read_in_regions_between_scans() -> None:
     whole = {d.tag_id: d.corners for d in OpenCvDetector("DICT_4X4_50").detect(frame)}
     for detection in results[1]:
         np.testing.assert_allclose(detection.corners, whole[detection.tag_id], atol=1e-4)
+
+
+def test_following_leaves_opencv_s_process_wide_thread_count_alone(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # several streams' workers may be inside OpenCV at once: a read that changed the count
+    # would change it under the others
+    changes: list[int] = []
+    monkeypatch.setattr(cv2, "setNumThreads", changes.append)
+    frame = gray(render_markers(W, H, [(3, square(100, 100, 80)), (7, square(400, 250, 60))]))
+    tracking = TrackingDetector("DICT_4X4_50", TrackingConfig(full_scan_period=4))
+    for _ in range(4):
+        tracking.detect(frame)
+    assert tracking.counters["followed"] == 3
+    assert changes == []
 
 
 def test_a_moving_tag_is_followed_and_a_jump_is_found_by_a_rescan() -> None:

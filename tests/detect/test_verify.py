@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.helpers import pipeline_of
 from zenoh_perception.detect.cells import (
     GRID_SIZES,
     _cell_stats,
@@ -33,7 +34,7 @@ from zenoh_perception.detect.rules import (
 )
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier, measure
-from zenoh_perception.pipeline import VETO_REASONS, Pipeline, TagFinder
+from zenoh_perception.pipeline import VETO_REASONS, TagFinder
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.geometry import mean_side
 from zenoh_perception.wire.frames import ENCODINGS, Frame
@@ -123,14 +124,14 @@ def test_verify_false_gives_opencvs_answer_unchanged() -> None:
     expected = OpenCvDetector("DICT_4X4_50").detect(_grey(image))
     assert expected  # a frame OpenCV reads ids on, which the verifier would veto
     # OpenCV's corners too, with their refinement off (it moves corners, never adds or drops)
-    off = Pipeline(Settings(verify=False, refine_corners=False)).process(_frame(image))
-    refined = Pipeline(Settings(verify=False)).process(_frame(image))
+    off = pipeline_of(Settings.from_flat(verify=False, refine_corners=False)).process(_frame(image))
+    refined = pipeline_of(Settings.from_flat(verify=False)).process(_frame(image))
     assert [t.tag_id for t in refined.tags] == [d.tag_id for d in expected]
     assert [(t.tag_id, t.corners) for t in off.tags] == [
         (d.tag_id, tuple((float(x), float(y)) for x, y in d.corners.astype(np.float64)))
         for d in expected
     ]
-    on = Pipeline(Settings())
+    on = pipeline_of(Settings())
     assert on.process(_frame(image)).tags == ()
     assert sum(on.vetoed.values()) == len(expected)
 

@@ -35,6 +35,7 @@ from tests.helpers import (
 )
 from zenoh_perception.tags.selection import NO_TAG
 from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 from zenoh_perception_bench._loopback import loopback_endpoint
 from zenoh_perception_bench.scene import render_markers
@@ -362,7 +363,7 @@ def _record(seq: int) -> bytes:
         selected=NO_TAG,
         tags=(),
         timing_ms={"latency_ms": 1.0},
-        source="raw",
+        source=InputKind.RAW,
     ).to_msgpack()
 
 

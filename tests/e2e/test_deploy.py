@@ -34,12 +34,12 @@ DOCKERIGNORE = ROOT / ".dockerignore"
 IMAGE_TOPIC = "/zed/left/image"
 TAG_TOPIC = "/tag"
 DEBUG_IMAGE_TOPIC = "/perception/debug/image/compressed"
-COMPRESSED_TOPIC = "/" + getattr(Settings(), COMPRESSED_INPUT_TOPIC.key_setting)
+COMPRESSED_TOPIC = "/" + str(Settings().topic_keys()[COMPRESSED_INPUT_TOPIC.key_setting])
 ROS_TO_ZENOH = (IMAGE_TOPIC, COMPRESSED_TOPIC)
 ZENOH_TO_ROS = (
     TAG_TOPIC,
     DEBUG_IMAGE_TOPIC,
-    *("/" + getattr(Settings(), t.key_setting) for t in (DETECTIONS_TOPIC, TF_TOPIC)),
+    *("/" + str(Settings().topic_keys()[t.key_setting]) for t in (DETECTIONS_TOPIC, TF_TOPIC)),
 )
 NEVER_ROUTED = (
     "/cmd_vel",
@@ -222,12 +222,12 @@ def test_no_service_or_action_is_routed(allow: Mapping[str, Any], kind: str) -> 
 def test_routed_topics_map_to_the_service_keys(plugin: Mapping[str, Any]) -> None:
     namespace = plugin.get("namespace", "/")
     defaults = Settings()
-    assert _ros_name_to_key(IMAGE_TOPIC, namespace) == defaults.input_key
-    assert _ros_name_to_key(TAG_TOPIC, namespace) == defaults.tag_key
-    assert _ros_name_to_key(DEBUG_IMAGE_TOPIC, namespace) == defaults.debug_image_key
-    assert _ros_name_to_key(COMPRESSED_TOPIC, namespace) == defaults.compressed_input_key
-    assert _ros_name_to_key("/perception/detections", namespace) == defaults.detections_key
-    assert _ros_name_to_key("/tf", namespace) == defaults.tf_key
+    assert _ros_name_to_key(IMAGE_TOPIC, namespace) == defaults.inputs.input_key
+    assert _ros_name_to_key(TAG_TOPIC, namespace) == defaults.outputs.tag_key
+    assert _ros_name_to_key(DEBUG_IMAGE_TOPIC, namespace) == defaults.outputs.debug_image_key
+    assert _ros_name_to_key(COMPRESSED_TOPIC, namespace) == defaults.inputs.compressed_input_key
+    assert _ros_name_to_key("/perception/detections", namespace) == defaults.outputs.detections_key
+    assert _ros_name_to_key("/tf", namespace) == defaults.outputs.tf_key
 
 
 def test_image_topic_is_never_downsampled_by_the_bridge(plugin: Mapping[str, Any]) -> None:

@@ -197,7 +197,7 @@ def test_camera_leaving_and_coming_back_is_answered_again(router: Router) -> Non
     observer = router.session
     with (
         open_session(mode="client", connect=[router.endpoint]) as service_session,
-        PerceptionService(service_session, Settings(stats_interval_s=0.0)) as service,
+        PerceptionService(service_session, Settings.from_flat(stats_interval_s=0.0)) as service,
     ):
         records = Collector(observer, "perception/tags")
         # First camera: a burst, then it vanishes in the middle of it (session closed).
@@ -235,7 +235,7 @@ def test_a_detector_error_on_one_frame_is_counted_and_the_worker_goes_on(
     peers: tuple[zenoh.Session, zenoh.Session],
 ) -> None:
     service_session, camera = peers
-    settings = Settings(stats_interval_s=0.0)
+    settings = Settings.from_flat(stats_interval_s=0.0)
     with PerceptionService(service_session, settings, detector=_FailingOn(17)) as service:
         publisher = camera.declare_publisher(FRAMES, congestion_control=_BLOCK)
         wait_for_subscriber(publisher)
@@ -434,7 +434,10 @@ _COMMANDS: dict[str, tuple[tuple[str, ...], Callable[[zenoh.Session], None]]] = 
     "run": (("run", "--stats-interval-s", "0"), _serving),
     "demo": (("demo", "--stats-interval-s", "0", "--resolution", "HD720"), _serving),
     "echo": (("echo",), _subscribed("tag")),
-    "view": (("view", "--save", "{tmp}/latest.jpg"), _subscribed(Settings().debug_image_key)),
+    "view": (
+        ("view", "--save", "{tmp}/latest.jpg"),
+        _subscribed(Settings().outputs.debug_image_key),
+    ),
     "replay": (("replay", "{tmp}/frame.png", "--loop", "--rate", "20"), _publishing),
 }
 

@@ -41,6 +41,7 @@ from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage, TagObservation
 from zenoh_perception.wire.frames import RawFrameMeta, encode_image_cdr
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.messages import CAMERA_INFO_TYPE, IMAGE_TYPE, TYPESTORE, header
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record
 from zenoh_perception_bench.scene import render_markers
@@ -60,7 +61,7 @@ def test_status_skips_and_counts_rogue_replies_and_prints_the_real_service(
 ) -> None:
     with (
         open_session(listen=[endpoint]) as session,
-        PerceptionService(session, Settings(stats_interval_s=0.0)),
+        PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)),
         open_session(connect=[endpoint]) as rogue,
     ):
         nested = _rogue_status(rogue, b"[" * 200_000 + b"]" * 200_000)
@@ -154,7 +155,7 @@ def test_a_control_character_in_a_setting_exits_2_naming_it(tmp_path: Path) -> N
 def _record(**changes: object) -> bytes:
     tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
     good = FrameRecord(
-        7, "cam", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+        7, "cam", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, InputKind.RAW
     ).to_msgpack()
     record = msgpack.unpackb(good)
     record.update(changes)

@@ -118,7 +118,7 @@ def test_status_is_json_with_counters_rates_latency_and_effective_settings(endpo
     assert status["fps"] > 0
     latency = status["latency_ms"]
     assert 0 < latency["p50"] <= latency["p99"]
-    expected = Settings(policy="center", stats_interval_s=0.0, log_interval_s=30.0)
+    expected = Settings.from_flat(policy="center", stats_interval_s=0.0, log_interval_s=30.0)
     assert status["settings"] == json.loads(json.dumps(expected.as_dict()))
     assert status["zid"] == first["zid"]
 

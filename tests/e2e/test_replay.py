@@ -8,7 +8,7 @@ import queue
 import signal
 import subprocess
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -87,7 +87,7 @@ class Served:
 def served(endpoint: str) -> Iterator[Served]:
     with (
         open_session(listen=[endpoint]) as session,
-        PerceptionService(session, Settings(stats_interval_s=0.0)) as service,
+        PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)) as service,
     ):
         yield Served(session, service)
 
@@ -366,7 +366,7 @@ def test_a_camera_nobody_reads_is_told_what_the_services_read(
 ) -> None:
     folder = tmp_path / "images"
     write_images(folder)
-    settings = replace(STREAMS, input_key="rover/*/image")
+    settings = STREAMS.with_flat(input_key="rover/*/image")
     with (
         open_session(listen=[endpoint]) as service_side,
         PerceptionService(service_side, settings),

@@ -632,23 +632,23 @@ class _Peer:
     def __init__(self, transport: str, overrides: Mapping[str, object] | None = None) -> None:
         self.rmw_zenoh = transport == RMW_ZENOH
         self._settings = load_settings(REPO / "config" / "perception.toml", overrides)
-        self._store = make_typestore(self._settings.ros_package)
+        self._store = make_typestore(self._settings.ros.ros_package)
         self._seq = 0
 
     def key(self, role: str, *, any_hash: bool = False) -> str:
         """A topic's key; ``any_hash``: every version of its type (a subscription's)."""
         topic = ros_topic(role)
-        plain = str(getattr(self._settings, topic.key_setting))
+        plain = str(self._settings.topic_keys()[topic.key_setting])
         if not self.rmw_zenoh:
             return plain
-        ros_type = topic.type_name(self._settings.ros_package)
+        ros_type = topic.type_name(self._settings.ros.ros_package)
         hash_ = ANY_HASH if any_hash else type_hash(self._store, ros_type)
         return topic_key(0, fully_qualified("", plain), ros_type, hash_)
 
     def token(self, node: NodeInfo, entity_id: int, kind: str, role: str) -> str:
         topic = ros_topic(role)
-        ros_type = topic.type_name(self._settings.ros_package)
-        fq_topic = fully_qualified("", str(getattr(self._settings, topic.key_setting)))
+        ros_type = topic.type_name(self._settings.ros.ros_package)
+        fq_topic = fully_qualified("", str(self._settings.topic_keys()[topic.key_setting]))
         hash_ = type_hash(self._store, ros_type)
         return node.entity_token(entity_id, kind, fq_topic, ros_type, hash_=hash_, qos=topic.qos)
 

@@ -43,7 +43,10 @@ def _tokens(session: zenoh.Session) -> dict[str, str]:
 
 
 def test_each_output_is_announced_as_the_bridge_announces_a_publisher() -> None:
-    with open_session() as session, PerceptionService(session, Settings(stats_interval_s=0.0)):
+    with (
+        open_session() as session,
+        PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)),
+    ):
         zid = str(session.zid())
         tokens = _tokens(session)
     assert set(tokens) == {
@@ -74,15 +77,15 @@ def test_each_output_is_announced_as_the_bridge_announces_a_publisher() -> None:
 
 def test_the_tokens_go_with_the_service() -> None:
     with open_session() as session:
-        with PerceptionService(session, Settings(stats_interval_s=0.0)):
+        with PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)):
             assert _tokens(session)
         assert _tokens(session) == {}
 
 
 def test_no_token_when_announcing_is_off_or_on_an_rmw_zenoh_graph() -> None:
     for settings in (
-        Settings(stats_interval_s=0.0, bridge_announce=False),
-        Settings(stats_interval_s=0.0, ros_transport="rmw_zenoh"),
+        Settings.from_flat(stats_interval_s=0.0, bridge_announce=False),
+        Settings.from_flat(stats_interval_s=0.0, ros_transport="rmw_zenoh"),
     ):
         with open_session() as session, PerceptionService(session, settings):
             assert _tokens(session) == {}
@@ -99,7 +102,7 @@ def test_a_bridge_elsewhere_sees_the_announcement(endpoint: str) -> None:
         subscriber = bridge.liveliness().declare_subscriber(
             ALL_TOKENS, lambda sample: seen.put(str(sample.key_expr)), history=True
         )
-        with PerceptionService(session, Settings(stats_interval_s=0.0)):
+        with PerceptionService(session, Settings.from_flat(stats_interval_s=0.0)):
             deadline = time.monotonic() + WAIT_S
             keys = set()
             while "tag" not in keys:

@@ -8,7 +8,7 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, cast
 
 import pytest
@@ -30,7 +30,7 @@ from zenoh_perception.settings import Settings
 from zenoh_perception.sharing import assign, held_by, member_token_key
 
 KEYS = [f"cams/{name}/image" for name in ("a", "b", "c", "d")]
-SETTINGS = Settings(
+SETTINGS = Settings.from_flat(
     input_key="cams/*/image",
     compressed_input_key="",
     tag_key="out/{stream}/tag",
@@ -105,9 +105,9 @@ def member(
         session,
         name="g",
         liveliness_key="perception/alive",
-        sources=camera_sources(settings),
+        sources=camera_sources(settings.inputs, settings.ros),
         fingerprint=settings_fingerprint(settings),
-        capacity=settings.max_streams,
+        capacity=settings.inputs.max_streams,
         take=held.take,
         release=held.release,
         gate=LogGate(5.0),
@@ -271,7 +271,7 @@ def test_an_instance_refuses_to_join_members_that_serve_other_settings(
     max_streams) once split the cameras, leaving some unanswered. The newcomer now refuses to
     join and names the setting that differs; the member there names it in its status."""
     first, second = peers
-    listed = replace(SETTINGS, input_key=("cams/a/image", "cams/b/image"), max_streams=8)
+    listed = SETTINGS.with_flat(input_key=("cams/a/image", "cams/b/image"), max_streams=8)
     tokens = [announce(first, key) for key in KEYS]
     with member(first) as one:
         wait_until(lambda: one.held.keys == set(KEYS), what="the first holds every stream")
@@ -282,7 +282,7 @@ def test_an_instance_refuses_to_join_members_that_serve_other_settings(
             pass
         assert one.held.keys == set(KEYS)
         # one that joins anyway (its token there, beating) is left out and named
-        other = settings_fingerprint(replace(SETTINGS, dictionary="DICT_5X5_100"))
+        other = settings_fingerprint(SETTINGS.with_flat(dictionary="DICT_5X5_100"))
         with ExitStack() as stack:
             stack.callback(_bare_token(second, "abcdef99", other).undeclare)
             publisher = second.declare_publisher("perception/alive/group/g/beat/abcdef99")
@@ -310,7 +310,8 @@ def test_announced_streams_beyond_the_bound_cost_a_counter_and_churn_leaves_noth
     with member(second) as one:
         wait_until(
             lambda: (
-                one.group.status()["streams"] == 1024 and len(one.held.keys) == SETTINGS.max_streams
+                one.group.status()["streams"] == 1024
+                and len(one.held.keys) == SETTINGS.inputs.max_streams
             ),
             what="1,024 streams kept, max_streams held",
         )
@@ -365,7 +366,7 @@ def test_random_liveliness_keys_never_raise_in_the_groups_handlers(
         session,
         name="g",
         liveliness_key="perception/alive",
-        sources=camera_sources(SETTINGS),
+        sources=camera_sources(SETTINGS.inputs, SETTINGS.ros),
         fingerprint=FINGERPRINT,
         capacity=4,
         take=lambda _key: None,
@@ -407,7 +408,7 @@ def test_a_crash_of_the_groups_thread_fails_the_service_loudly(
         first,
         name="g",
         liveliness_key="perception/alive",
-        sources=camera_sources(SETTINGS),
+        sources=camera_sources(SETTINGS.inputs, SETTINGS.ros),
         fingerprint=FINGERPRINT,
         capacity=4,
         take=take,

@@ -9,7 +9,7 @@ import queue
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -86,10 +86,10 @@ def _rig(settings: Settings, endpoint: str) -> Iterator[Rig]:
         service = PerceptionService(service_session, settings)
         service.start()
         try:
-            tags = Collector(camera, settings.tag_key)
-            records = Collector(camera, settings.record_key)
+            tags = Collector(camera, settings.outputs.tag_key)
+            records = Collector(camera, settings.outputs.record_key)
             # BLOCK: Zenoh never drops a large frame when the machine is busy
-            (input_key,) = settings.entries("input_key")
+            (input_key,) = settings.inputs.input_entries
             publisher = camera.declare_publisher(
                 input_key, congestion_control=zenoh.CongestionControl.BLOCK
             )
@@ -105,7 +105,7 @@ rig_with = contextmanager(_rig)
 
 @pytest.fixture
 def rig(endpoint: str) -> Iterator[Rig]:
-    yield from _rig(Settings(stats_interval_s=0), endpoint)
+    yield from _rig(Settings.from_flat(stats_interval_s=0), endpoint)
 
 
 def test_raw_and_cdr_frames_each_get_a_tag_and_an_agreeing_record(rig: Rig) -> None:
@@ -194,7 +194,7 @@ def test_closeness_and_record_are_float32_exact(rig: Rig) -> None:
 
 
 def test_center_policy_and_custom_keys(endpoint: str) -> None:
-    settings = Settings(
+    settings = Settings.from_flat(
         policy="center",
         tag_key="rover/tag",
         record_key="rover/tags",
@@ -234,7 +234,9 @@ def _camera_info(fx: float, fy: float | None = None) -> bytes:
 
 
 def test_camera_info_enables_distance_in_the_record(endpoint: str) -> None:
-    settings = Settings(camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0)
+    settings = Settings.from_flat(
+        camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0
+    )
     with rig_with(settings, endpoint) as rig:
         info_pub = rig.camera.declare_publisher("zed/left/camera_info")
         wait_for_subscriber(info_pub)
@@ -278,7 +280,7 @@ def test_run_moves_what_start_up_made_out_of_the_collectors_way(endpoint: str) -
     stop = threading.Event()
     exit_codes: list[int] = []
     conf = loopback_config(listen=[endpoint])
-    settings = Settings(stats_interval_s=0)
+    settings = Settings.from_flat(stats_interval_s=0)
     thread = threading.Thread(target=lambda: exit_codes.append(run(conf, settings, stop)))
     thread.start()
     try:
@@ -295,7 +297,7 @@ def test_run_moves_what_start_up_made_out_of_the_collectors_way(endpoint: str) -
 def test_distance_metric_ranks_tags_without_a_pose_after_tags_with_one(endpoint: str) -> None:
     """Tag 7 has a size (a pose, 1.67 m: closeness 0.83 over 2 m); tag 3 has none and keeps its
     area closeness (0.64), which is not comparable: tag 7 is selected."""
-    settings = Settings(
+    settings = Settings.from_flat(
         metric="distance",
         max_range_m=2.0,
         tag_sizes=((7, 0.2),),
@@ -318,7 +320,9 @@ def test_distance_metric_ranks_tags_without_a_pose_after_tags_with_one(endpoint:
 
 
 def test_implausible_camera_info_is_counted_and_ignored(endpoint: str) -> None:
-    settings = Settings(camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0)
+    settings = Settings.from_flat(
+        camera_info_key="zed/left/camera_info", tag_size_m=0.2, stats_interval_s=0
+    )
     with rig_with(settings, endpoint) as rig:
         info_pub = rig.camera.declare_publisher("zed/left/camera_info")
         wait_for_subscriber(info_pub)
@@ -351,7 +355,7 @@ def test_camera_info_changes_are_logged_at_most_once_per_interval(
     endpoint: str, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.INFO, logger="zenoh_perception")
-    settings = Settings(
+    settings = Settings.from_flat(
         camera_info_key="zed/left/camera_info",
         tag_size_m=0.2,
         stats_interval_s=0,
@@ -504,8 +508,7 @@ def test_hold_and_release_subscribe_one_camera_key_at_run_time(endpoint: str) ->
 def test_a_list_of_cameras_each_takes_the_camera_info_of_its_own_entry(endpoint: str) -> None:
     """input_key and camera_info_key both lists: a CameraInfo goes to the stream named as
     its key is under camera_info_key's list (rear's to rear only)."""
-    settings = replace(
-        STREAMS,
+    settings = STREAMS.with_flat(
         input_key=("cams/front/image", "cams/rear/image"),
         camera_info_key=("cams/front/camera_info", "cams/rear/camera_info"),
         tag_size_m=0.2,

@@ -96,7 +96,7 @@ def rig(endpoint: str, monkeypatch: pytest.MonkeyPatch) -> Iterator[_Rig]:
     monkeypatch.setattr("zenoh_perception.service.outputs.annotate", annotate)
     monkeypatch.setattr("zenoh_perception.service.outputs.encode_compressed_image", encode)
     # No rate cap in the way: every watched frame yields a debug image.
-    settings = Settings(stats_interval_s=0.0, debug_image_max_hz=1000.0)
+    settings = Settings.from_flat(stats_interval_s=0.0, debug_image_max_hz=1000.0)
     with (
         open_session(listen=[endpoint]) as service_side,
         PerceptionService(service_side, settings),
@@ -190,7 +190,7 @@ def test_debug_image_is_off_when_disabled(endpoint: str, monkeypatch: pytest.Mon
         return real_encode(*args, **kwargs)
 
     monkeypatch.setattr("zenoh_perception.service.outputs.encode_compressed_image", encode)
-    settings = Settings(stats_interval_s=0.0, debug_image=False)
+    settings = Settings.from_flat(stats_interval_s=0.0, debug_image=False)
     with (
         open_session(listen=[endpoint]) as service_side,
         PerceptionService(service_side, settings),

@@ -15,7 +15,7 @@ from zenoh_perception.service.node import PerceptionService
 from zenoh_perception.service.status import query_status
 from zenoh_perception.settings import Settings
 
-SETTINGS = Settings(stats_interval_s=0.0)
+SETTINGS = Settings.from_flat(stats_interval_s=0.0)
 
 
 def _alive(session: zenoh.Session) -> list[str]:
@@ -95,7 +95,9 @@ def test_replies_that_are_not_a_json_object_are_left_out(
 
 def test_the_status_key_can_be_another(peers: tuple[zenoh.Session, zenoh.Session]) -> None:
     service_side, client = peers
-    with PerceptionService(service_side, Settings(stats_interval_s=0.0, status_key="rover/s")):
+    with PerceptionService(
+        service_side, Settings.from_flat(stats_interval_s=0.0, status_key="rover/s")
+    ):
         assert query_status(client, timeout=0.5) == []
         (reply,) = query_status(client, key="rover/s", timeout=1.0)
     assert reply["settings"]["status_key"] == "rover/s"

@@ -13,7 +13,9 @@ from zenoh_perception.service.ros_transport import RosTransport
 
 def test_a_key_without_stream_is_one_publisher_for_every_stream(endpoint: str) -> None:
     with open_session(listen=[endpoint]) as session, open_session(connect=[endpoint]) as peer:
-        publishers = PublisherPool(session, RosTransport(session, STREAMS))
+        publishers = PublisherPool(
+            session, RosTransport(session, STREAMS.ros, STREAMS.topic_keys())
+        )
         front_tf = publishers.ros("tf", "front", express=True)
         rear_tf = publishers.ros("tf", "rear", express=True)
         assert front_tf is rear_tf and front_tf.key == "tf"  # one TF topic

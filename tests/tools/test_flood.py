@@ -19,8 +19,10 @@ from zenoh_perception.settings import Settings
 def test_hd720_flood_keeps_memory_bounded_and_the_next_frame_is_answered_at_once(
     endpoint: str,
 ) -> None:
-    settings = Settings(stats_interval_s=0.0)
-    gate = HoldableDetector(make_detector(settings.detector, settings.dictionary))
+    settings = Settings.from_flat(stats_interval_s=0.0)
+    gate = HoldableDetector(
+        make_detector(settings.detection.detector, settings.detection.dictionary)
+    )
     config = LoadConfig(resolution="HD720", ratio=8.0, count=240)
     with (
         open_session(listen=[endpoint]) as service_session,

@@ -29,7 +29,7 @@ from zenoh_perception.wire.bridge_config import (
     stream_name_patterns,
 )
 from zenoh_perception.wire.ros_topics import ROS_TOPICS, Direction
-from zenoh_perception.wire.stream_keys import StreamNames, key_entries, output_key
+from zenoh_perception.wire.stream_keys import Keys, StreamNames, key_entries, output_key
 
 OUTPUTS = ("tag_key", "debug_image_key", "detections_key", "tf_key")
 
@@ -150,7 +150,7 @@ def _settings(setup: Setup) -> Settings:
 
 def _routes(setup: Setup) -> BridgeRoutes:
     settings = _settings(setup)
-    values = {t.key_setting: getattr(settings, t.key_setting) for t in ROS_TOPICS}
+    values = settings.topic_keys()
     return bridge_routes(values, ros_package="mrover", namespace=setup.namespace)
 
 
@@ -167,13 +167,19 @@ def _allow_of(name: str) -> dict[str, list[str]]:
     return allow
 
 
+def _value(settings: Settings, name: str) -> Keys:
+    """The key setting ``name`` (a ROS topic's)."""
+    return settings.topic_keys()[name]
+
+
 def _service_outputs(settings: Settings, camera: str) -> list[str]:
     """The output keys the service uses for the stream of the concrete key ``camera``."""
     for name in ("input_key", "compressed_input_key"):
-        keys = getattr(settings, name)
+        keys = _value(settings, name)
         stream = StreamNames(keys).name(camera) if key_entries(keys) else None
         if stream is not None:
-            values = (getattr(settings, o) for o in OUTPUTS)
+            o = settings.outputs
+            values = (o.tag_key, o.debug_image_key, o.detections_key, o.tf_key)  # OUTPUTS
             return [output_key(v, stream) for v in values if v]
     raise AssertionError(f"{camera} is no camera of these settings")
 
@@ -214,14 +220,14 @@ def _used_keys(settings: Settings, direction: Direction) -> list[zenoh.KeyExpr]:
     names = [
         n
         for i in ("input_key", "compressed_input_key")
-        if key_entries(getattr(settings, i))
-        for n in stream_name_patterns(getattr(settings, i))
+        if key_entries(_value(settings, i))
+        for n in stream_name_patterns(_value(settings, i))
     ]
     exprs: list[zenoh.KeyExpr] = []
     for topic in ROS_TOPICS:
         if topic.direction is not direction:
             continue
-        for entry in key_entries(getattr(settings, topic.key_setting)):
+        for entry in key_entries(_value(settings, topic.key_setting)):
             for name in names if "{stream}" in entry else [""]:
                 exprs.append(zenoh.KeyExpr(output_key(entry, name)))
     return exprs

@@ -30,7 +30,7 @@ def _decode(payload: memoryview | bytes) -> Any:
 
 
 def test_the_topic_is_apriltag_ros_type_on_its_own_key() -> None:
-    assert Settings().detections_key == "perception/detections"  # /perception/detections
+    assert Settings().outputs.detections_key == "perception/detections"  # /perception/detections
     assert DETECTIONS_TOPIC.ros_type == "apriltag_msgs/msg/AprilTagDetectionArray"
     assert DETECTIONS_TOPIC.key_setting == "detections_key"
 

@@ -20,6 +20,7 @@ from tests.helpers import REPO
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.tags.pose import quaternion_from_rvec
 from zenoh_perception.tags.selection import NO_TAG, Metric, TagMessage, TagObservation
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.messages import (
     make_typestore,
     tag_type_name,
@@ -54,7 +55,7 @@ def _record(tags: tuple[TagObservation, ...]) -> FrameRecord:
         selected=selected,
         tags=tags,
         timing_ms={"latency_ms": 3.25, "detect_ms": 2.0},
-        source="raw",
+        source=InputKind.RAW,
     )
 
 
@@ -92,6 +93,17 @@ def test_record_roundtrip_matches_the_schema(tags: tuple[TagObservation, ...]) -
         assert record["tags"][0]["distance_m"] == 2.5
     else:
         assert record["selected"]["tag_id"] == -1
+
+
+@pytest.mark.parametrize(
+    ("kind", "text"),
+    [(InputKind.RAW, "raw"), (InputKind.CDR, "cdr"), (InputKind.COMPRESSED, "compressed")],
+)
+def test_the_record_names_its_source_and_stream_as_plain_text(kind: InputKind, text: str) -> None:
+    record = replace(_record(()), source=kind, input_key="cams/front/image")
+    packed = record.to_msgpack()
+    assert msgpack.packb("source") + msgpack.packb(text) in packed
+    assert msgpack.packb("stream") + msgpack.packb("cams/front/image") in packed
 
 
 def test_a_pose_carries_its_rotation_as_a_quaternion_too() -> None:
@@ -323,7 +335,7 @@ def test_any_record_decodes_to_what_was_encoded(
 ) -> None:
     selected = tags[0].message() if tags else NO_TAG
     record = FrameRecord(
-        stamp_ns, frame_id, seq, 640, 480, selected, tuple(tags), {"latency_ms": 1.0}, "raw"
+        stamp_ns, frame_id, seq, 640, 480, selected, tuple(tags), {"latency_ms": 1.0}, InputKind.RAW
     )
     decoded = decode_record(record.to_msgpack())
     assert (decoded["stamp_ns"], decoded["seq"], decoded["frame_id"]) == (stamp_ns, seq, frame_id)
@@ -380,7 +392,7 @@ def test_a_decoded_record_always_prints_as_strict_json(changes: dict[str, object
     tag = TagObservation(4, 50.0, 60.0, 0.5, ((45, 55), (55, 55), (55, 65), (45, 65)), 100.0)
     record = msgpack.unpackb(
         FrameRecord(
-            7, "c", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, "raw"
+            7, "c", 7, 64, 48, tag.message(), (tag,), {"latency_ms": 1.0}, InputKind.RAW
         ).to_msgpack()
     )
     record.update(changes)

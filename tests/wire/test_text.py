@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from tests.helpers import parse_pairs
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.tags.selection import NO_TAG, TagMessage, TagObservation
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec, decode_record, f32
 from zenoh_perception.wire.text import format_decoded_record, format_record, format_tag
 
@@ -29,7 +30,7 @@ def _record(*tags: TagObservation, seq: int = 41) -> bytes:
         selected=tags[0].message() if tags else NO_TAG,
         tags=tags,
         timing_ms={"latency_ms": 3.14159, "detect_ms": 2.0},
-        source="cdr",
+        source=InputKind.CDR,
     ).to_msgpack()
 
 

@@ -27,7 +27,7 @@ def _tag(tag_id: int, pose: bool = True) -> TagObservation:
 
 def test_the_topic_is_tf() -> None:
     assert (TF_TOPIC.key_setting, TF_TOPIC.ros_type) == ("tf_key", "tf2_msgs/msg/TFMessage")
-    assert Settings().tf_key == "tf"  # the ROS topic /tf, through the bridge
+    assert Settings().outputs.tf_key == "tf"  # the ROS topic /tf, through the bridge
 
 
 def test_the_bytes_follow_transform_stamped_field_by_field() -> None:

@@ -256,7 +256,7 @@ class ReplayOptions:
     subscriber_timeout_s: float | None = None  # None = wait until stopped
     progress: bool = False
     shm: bool = False  # put frames from a Zenoh shared-memory buffer
-    max_frame_bytes: int = Settings().max_frame_bytes  # larger frames stop the replay
+    max_frame_bytes: int = Settings().limits.max_frame_bytes  # larger frames stop the replay
     compressed: Codec | None = None  # publish CompressedImage CDR of this codec
 
 

@@ -6,20 +6,20 @@ import sys
 from pathlib import Path
 
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings import RosTransportKind, Settings
 from zenoh_perception.wire.bridge_config import bridge_routes, render
-from zenoh_perception.wire.ros_topics import ROS_TOPICS
 
 
 def main(
     settings: Settings, *, source: str, namespace: str, domain: int, output: Path | None
 ) -> int:
     """Write the bridge's JSON5 for ``settings`` to ``output`` (stdout when None)."""
-    if settings.ros_transport != "bridge":
+    if settings.ros.ros_transport is not RosTransportKind.BRIDGE:
         msg = "ros_transport is not 'bridge': the service needs no zenoh-bridge-ros2dds then"
         raise SettingsError(msg)
-    values = {t.key_setting: getattr(settings, t.key_setting) for t in ROS_TOPICS}
-    routes = bridge_routes(values, ros_package=settings.ros_package, namespace=namespace)
+    routes = bridge_routes(
+        settings.topic_keys(), ros_package=settings.ros.ros_package, namespace=namespace
+    )
     text = render(routes, namespace=namespace, domain=domain, source=source)
     if output is None:
         sys.stdout.write(text)

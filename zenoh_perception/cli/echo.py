@@ -25,7 +25,7 @@ import zenoh
 from zenoh_perception.errors import MessageDecodeError, SettingsError
 from zenoh_perception.service.skips import Skipped
 from zenoh_perception.service.zenoh_args import open_zenoh
-from zenoh_perception.settings import check_bound, check_ros_package
+from zenoh_perception.settings import RosTransportKind, check_bound, check_ros_package
 from zenoh_perception.wire.records import TagCodec, decode_record
 from zenoh_perception.wire.rmw_zenoh import (
     ANY_HASH,
@@ -138,7 +138,7 @@ def listen_key(key: str) -> str:
 class RosGraph:
     """How the service meets ROS 2 (its ``ros_transport``, ``ros_domain_id``, ``ros_namespace``)."""
 
-    transport: str = "bridge"
+    transport: RosTransportKind = RosTransportKind.BRIDGE
     domain_id: int = 0
     namespace: str = ""
 
@@ -150,7 +150,7 @@ class RosGraph:
             SettingsError: a domain id, namespace or tag topic rmw_zenoh cannot have.
 
         """
-        if self.transport != "rmw_zenoh":
+        if self.transport is not RosTransportKind.RMW_ZENOH:
             return listen_key(tag_key)
         check_bound("ros_domain_id", self.domain_id)
         if not is_namespace(self.namespace) or not is_relative_topic(output_key(tag_key, "stream")):

@@ -180,7 +180,7 @@ def probe(path: Path, *, max_frames: int = DEFAULT_MAX_FRAMES, topic: str | None
     detector = OpenCvDetector(", ".join(READ_WITH))
     # the service's veto, so that look-alikes (key-caps, lettering) propose no family
     verifier = Verifier(", ".join(READ_WITH))
-    max_pixels = Settings().max_frame_pixels
+    max_pixels = Settings().limits.max_frame_pixels
     for frame in _sampled(source, max_frames):
         try:
             grey = _grey(frame, max_pixels)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.second_look import SecondLook
 from zenoh_perception.detect.tracking import TrackingConfig, TrackingDetector
-from zenoh_perception.detect.types import DETECTORS, Detector, dictionary_names
+from zenoh_perception.detect.types import DETECTORS, Detector, DetectorKind, dictionary_names
 from zenoh_perception.errors import SettingsError
 
 
@@ -31,7 +31,7 @@ def make_detector(
         msg = f"unknown detector {name!r}; choose one of {', '.join(DETECTORS)}"
         raise SettingsError(msg)
     look = SecondLook(dictionary_names(dictionary)) if second_look else None
-    if name == "opencv":
+    if name == DetectorKind.OPENCV:
         return OpenCvDetector(dictionary, wary=wary, second_look=look)
     config = TrackingConfig(full_scan_period=full_scan_period)
     return TrackingDetector(dictionary, config, wary=wary, second_look=look)

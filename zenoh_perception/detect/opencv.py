@@ -3,8 +3,6 @@ detector of this package is held to."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from time import perf_counter
 from typing import Any
 
@@ -39,22 +37,11 @@ _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.05
 
 def set_opencv_threads(threads: int) -> None:
     """The process's OpenCV threads (``opencv_threads``; 0: OpenCV's choice): set once, when a
-    process that detects starts (the service, a child process of the frame deadline)."""
+    process that detects starts (the service, a child process of the frame deadline), and
+    never changed while it runs: the count is process-wide, and several streams' workers may
+    be inside OpenCV at once."""
     if threads > 0:
         cv2.setNumThreads(threads)
-
-
-@contextmanager
-def single_threaded() -> Iterator[None]:
-    """OpenCV on one thread meanwhile. For small images (regions, thumbnails) waking OpenCV's
-    thread pool costs more than the work it shares, and far more on a busy machine. The
-    setting is process-wide: detectors are used from one thread at a time."""
-    previous = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(previous)
 
 
 def detections_from_opencv(

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.opencv import OpenCvDetector, single_threaded
+from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.regions import Rect, around, inside, perimeter, same_marker, side
 from zenoh_perception.detect.types import Detection, Detector, Looker
 from zenoh_perception.errors import SettingsError
@@ -182,9 +182,8 @@ class TrackingDetector(Detector):
         if self._appeared(change, width, height):
             self.counters["appearances"] += 1
             return self._scan(gray)
-        with single_threaded():
-            glimpsed = self.config.glimpse and self._glimpsed(gray)
-            found = None if glimpsed else self._follow(gray)
+        glimpsed = self.config.glimpse and self._glimpsed(gray)
+        found = None if glimpsed else self._follow(gray)
         if glimpsed:
             self.counters["glimpses"] += 1
             return self._scan(gray)

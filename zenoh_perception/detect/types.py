@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from enum import Enum
+from enum import Enum, StrEnum
 from typing import Final, Protocol
 
 import numpy as np
@@ -38,9 +38,18 @@ DICTIONARIES: Final = (
     "DICT_ARUCO_MIP_36h12",
 )
 
-#: ``opencv`` (the default): OpenCV's detector on every whole frame; ``tracking``: the same
-#: detector on whole frames when needed, on regions around known tags in between.
-DETECTORS: Final = ("opencv", "tracking")
+
+class DetectorKind(StrEnum):
+    """The detectors settings may name: ``opencv`` (the default), OpenCV's detector on every
+    whole frame; ``tracking``, the same detector on whole frames when needed, on regions
+    around known tags in between."""
+
+    OPENCV = "opencv"
+    TRACKING = "tracking"
+
+
+#: Every detector's name, as the settings write it.
+DETECTORS: Final = tuple(DetectorKind)
 
 
 def dictionary_name(name: str) -> str:

@@ -20,7 +20,7 @@ from zenoh_perception.service.inputs import StreamNaming
 from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate, ServiceStats
 from zenoh_perception.service.stream import CameraInfo, Stream
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Inputs
 from zenoh_perception.wire.camera_info import check_camera_info_size, decode_camera_info
 
 log = logging.getLogger(__name__)
@@ -36,7 +36,7 @@ class CameraInfos:
 
     def __init__(
         self,
-        settings: Settings,
+        inputs: Inputs,
         totals: ServiceStats,
         gate: LogGate,
         *,
@@ -44,7 +44,7 @@ class CameraInfos:
         streams: Mapping[str, Stream],
         lock: threading.Lock,
     ) -> None:
-        self._settings = settings
+        self._max_streams = inputs.max_streams
         self._totals = totals
         self._log = LimitedLog(log, gate)
         self._naming = naming
@@ -81,7 +81,7 @@ class CameraInfos:
         with self._lock:
             self._infos[name] = camera
             self._infos.move_to_end(name)
-            while len(self._infos) > self._settings.max_streams:
+            while len(self._infos) > self._max_streams:
                 self._infos.popitem(last=False)
             targets = [s for s in self._streams.values() if name in ("", s.name)]
         changed = [stream.use_camera_info(camera) for stream in targets]

@@ -64,10 +64,11 @@ from zenoh_perception.errors import (
     RmwZenohError,
     SettingsError,
 )
-from zenoh_perception.service.logs import kv
+from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
 from zenoh_perception.service.threads import guarded_thread
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings import RosTransportKind, Settings
+from zenoh_perception.settings.sections import Inputs, Ros
 from zenoh_perception.sharing import (
     GROUP_SETTINGS,
     MAX_ANNOUNCED,
@@ -97,7 +98,7 @@ from zenoh_perception.wire.rmw_zenoh import dds_type_name, topic_key
 from zenoh_perception.wire.rmw_zenoh import parse_token as parse_rmw_token
 from zenoh_perception.wire.stream_keys import StreamNames, key_entries
 
-log = logging.getLogger("zenoh_perception.service.group")
+log = logging.getLogger(__name__)
 
 #: How long joining waits for the members and streams already there, s.
 DISCOVERY_TIMEOUT_S: Final = 2.0
@@ -125,10 +126,15 @@ class CameraSource:
 
 def settings_fingerprint(settings: Settings) -> str:
     """The fingerprint of what ``settings`` serve in a group (a list of keys as one text)."""
-    values = {}
-    for name in GROUP_SETTINGS:
-        value = getattr(settings, name)
-        values[name] = "\n".join(key_entries(value)) if name.endswith("_key") else str(value)
+    inputs = settings.inputs
+    values = {
+        "input_key": "\n".join(inputs.input_entries),
+        "compressed_input_key": "\n".join(key_entries(inputs.compressed_input_key)),
+        "max_streams": str(inputs.max_streams),
+        "dictionary": settings.detection.dictionary,
+        "ros_transport": str(settings.ros.ros_transport),
+    }
+    assert tuple(values) == GROUP_SETTINGS, "the fingerprint's fields, in their order"
     return fingerprint(values)
 
 
@@ -139,8 +145,8 @@ _CAMERA_TYPES: Final = {
 }
 
 
-def camera_sources(settings: Settings) -> list[CameraSource]:
-    """Where the cameras of ``settings``' inputs are announced, each read as the service
+def camera_sources(inputs: Inputs, ros: Ros) -> list[CameraSource]:
+    """Where the cameras of ``inputs`` are announced, each read as the service
     names its streams (raw and compressed streams apart):
 
     - ``@camera/<entry>`` for each entry of each frame input (this project's cameras);
@@ -149,22 +155,18 @@ def camera_sources(settings: Settings) -> list[CameraSource]:
     - with ``ros_transport = "rmw_zenoh"``, rmw_zenoh's publisher tokens in the configured
       domain (the stream is the topic's data key).
     """
-    inputs = {
-        role: StreamNames(getattr(settings, role))
-        for role in _CAMERA_TYPES
-        if getattr(settings, role)
-    }
+    named = {role: StreamNames(keys) for role, keys in inputs.frame_inputs if keys}
     sources = [
         CameraSource(camera_token_key(entry), partial(_read_camera_token, role, names))
-        for role, names in inputs.items()
+        for role, names in named.items()
         for entry in names.entries
     ]
-    by_type = {_CAMERA_TYPES[role]: (role, names) for role, names in inputs.items()}
+    by_type = {_CAMERA_TYPES[role]: (role, names) for role, names in named.items()}
     sources.append(CameraSource(BRIDGE_PUBLISHERS, partial(_read_bridge_token, by_type)))
-    if settings.ros_transport == "rmw_zenoh":
-        domain = settings.ros_domain_id
-        by_dds = {dds_type_name(t): (t, *named) for t, named in by_type.items()}
-        read = partial(_read_rmw_token, by_dds, domain, settings.ros_namespace)
+    if ros.ros_transport is RosTransportKind.RMW_ZENOH:
+        domain = ros.ros_domain_id
+        by_dds = {dds_type_name(t): (t, *names) for t, names in by_type.items()}
+        read = partial(_read_rmw_token, by_dds, domain, ros.ros_namespace)
         sources.append(CameraSource(f"{RMW_ADMIN}/{domain}/*/*/*/{RMW_PUBLISHER}/**", read))
     return sources
 
@@ -281,7 +283,7 @@ class StreamGroup:
         self._fingerprint = fingerprint
         self._capacity = capacity
         self._take, self._release = take, release
-        self._gate = gate
+        self._log = LimitedLog(log, gate)
         self._discovery_timeout_s = discovery_timeout_s
         self._silent_after_s = silent_after_s
         self._zid = str(session.zid())
@@ -546,10 +548,14 @@ class StreamGroup:
                 if len(self._ignored_tokens) < MAX_ANNOUNCED:
                     self._ignored_tokens.add(token)
             self._ignored[err.reason] += 1
-        suppressed = self._gate.admit(f"group:{err.reason}")
-        if suppressed is not None:
-            fields = kv(group=self.name, reason=err.reason, key=err.key[:120])
-            log.warning("event=announcement_ignored %s suppressed=%d", fields, suppressed)
+        self._log(
+            logging.WARNING,
+            f"group:{err.reason}",
+            "announcement_ignored",
+            group=self.name,
+            reason=err.reason,
+            key=err.key[:120],
+        )
 
     def _forget_ignored(self, token: str) -> None:
         with self._lock:
@@ -559,19 +565,16 @@ class StreamGroup:
         settings = differing(self._fingerprint, fingerprint)
         if not settings:
             return
-        suppressed = self._gate.admit(f"group:disagreeing:{zid}")
-        if suppressed is not None:
-            log.warning(
-                "event=member_disagrees %s",
-                kv(
-                    group=self.name,
-                    member=zid,
-                    differs=",".join(settings),
-                    detail="left out of the assignment: every member needs the same "
-                    + ", ".join(GROUP_SETTINGS),
-                    suppressed=suppressed,
-                ),
-            )
+        self._log(
+            logging.WARNING,
+            f"group:disagreeing:{zid}",
+            "member_disagrees",
+            group=self.name,
+            member=zid,
+            differs=",".join(settings),
+            detail="left out of the assignment: every member needs the same "
+            + ", ".join(GROUP_SETTINGS),
+        )
 
     # -- the group's thread ------------------------------------------------------------------
 

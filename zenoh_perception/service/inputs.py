@@ -12,9 +12,11 @@ import zenoh
 
 from zenoh_perception.errors import SettingsError
 from zenoh_perception.service.ros_transport import RosTransport
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Inputs
 from zenoh_perception.wire.compressed import decode_compressed_cdr
-from zenoh_perception.wire.frames import Frame, InputKind, decode_image_cdr, decode_raw_frame
+from zenoh_perception.wire.frames import Frame, decode_image_cdr, decode_raw_frame
+from zenoh_perception.wire.input_kinds import InputKind
+from zenoh_perception.wire.ros_topics import input_role
 from zenoh_perception.wire.stream_keys import StreamNames
 
 RAW: Final = InputKind.RAW
@@ -55,17 +57,17 @@ DECODERS: Final[Mapping[InputKind, Decoder]] = {
 }
 
 
-def input_patterns(settings: Settings) -> dict[InputKind, StreamNames]:
+def input_patterns(inputs: Inputs) -> dict[InputKind, StreamNames]:
     """How each input kind's keys name their streams."""
     patterns: dict[InputKind, StreamNames] = {}
-    if settings.input_key:
-        patterns[RAW] = patterns[CDR] = StreamNames(settings.input_key)
-    if settings.compressed_input_key:
-        patterns[COMPRESSED] = StreamNames(settings.compressed_input_key)
+    if inputs.input_key:
+        patterns[RAW] = patterns[CDR] = StreamNames(inputs.input_key)
+    if inputs.compressed_input_key:
+        patterns[COMPRESSED] = StreamNames(inputs.compressed_input_key)
     return patterns
 
 
-def kind_of(key: str, settings: Settings, ros: RosTransport) -> InputKind:
+def kind_of(key: str, inputs: Inputs, ros: RosTransport) -> InputKind:
     """The input whose samples the concrete ``key`` carries.
 
     Raises:
@@ -80,12 +82,12 @@ def kind_of(key: str, settings: Settings, ros: RosTransport) -> InputKind:
     def matches(keys: list[str] | tuple[str, ...]) -> bool:
         return any(zenoh.KeyExpr(k).intersects(concrete) for k in keys)
 
-    if settings.input_key:
-        if ros.rmw_zenoh and matches(ros.keys("camera")):
+    if inputs.input_key:
+        if ros.rmw_zenoh and matches(ros.keys(input_role(CDR))):
             return CDR
-        if matches(settings.entries("input_key")):
+        if matches(inputs.input_entries):
             return RAW
-    if settings.compressed_input_key and matches(ros.keys("compressed_camera")):
+    if inputs.compressed_input_key and matches(ros.keys(input_role(COMPRESSED))):
         return COMPRESSED
     msg = f"{key!r} matches neither input_key nor compressed_input_key"
     raise SettingsError(msg)
@@ -101,16 +103,16 @@ class StreamNaming:
     frame, at most ``max_streams`` of them.
     """
 
-    def __init__(self, settings: Settings, ros: RosTransport) -> None:
+    def __init__(self, inputs: Inputs, ros: RosTransport) -> None:
         self._ros = ros
-        self._patterns = input_patterns(settings)
-        self._info_names = StreamNames(settings.camera_info_key)
+        self._patterns = input_patterns(inputs)
+        self._info_names = StreamNames(inputs.camera_info_key)
         #: Log lines and the status name each stream (an input may have several).
-        self.named = settings.several
+        self.named = inputs.several
         #: The streams known before any frame: opened at start, never forgotten when idle.
         self.at_start: tuple[str, ...] = () if self.named else ("",)
         #: The most streams the service serves at once.
-        self.most_streams = settings.max_streams if self.named else 1
+        self.most_streams = inputs.max_streams if self.named else 1
 
     def name(self, kind: InputKind, key: str) -> str | None:
         """The name of the stream ``key`` (a sample's key on input ``kind``) belongs to; None

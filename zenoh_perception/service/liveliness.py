@@ -11,7 +11,7 @@ import zenoh
 
 from zenoh_perception.service.logs import LimitedLog
 from zenoh_perception.service.stats import LogGate
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Group, Outputs
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
 log = logging.getLogger(__name__)
@@ -25,9 +25,16 @@ class OtherServices:
     """
 
     def __init__(
-        self, settings: Settings, gate: LogGate, *, zid: str, stop: threading.Event
+        self,
+        outputs: Outputs,
+        group: Group,
+        gate: LogGate,
+        *,
+        zid: str,
+        stop: threading.Event,
     ) -> None:
-        self._settings = settings
+        self._tag_key = outputs.tag_key
+        self._share_group = group.share_group
         self._log = LimitedLog(log, gate)
         self._zid = zid
         self._stop = stop
@@ -45,7 +52,7 @@ class OtherServices:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
         if self._stop.is_set() or sample.kind != zenoh.SampleKind.PUT or other == self._zid:
             return
-        if self._settings.share_group:
+        if self._share_group:
             return  # the members of a group share the keys by design, one holder a stream
         with self._lock:
             self.count += 1
@@ -55,7 +62,7 @@ class OtherServices:
             "another_service",
             zid=other,
             liveliness=str(sample.key_expr),
-            tag=self._settings.tag_key,
+            tag=self._tag_key,
             detail="another perception service runs here; on the same keys every tag and "
             "record is published twice: give each its own keys, or start each with the "
             "same --share-group NAME to divide the cameras between them",

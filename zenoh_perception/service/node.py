@@ -103,9 +103,10 @@ from zenoh_perception.service.stream import Arrival, Shared, Stream
 from zenoh_perception.service.threads import guarded_thread
 from zenoh_perception.service.watchdog import watch
 from zenoh_perception.service.workers import Workers, usable_cpus
-from zenoh_perception.settings import Settings
-from zenoh_perception.wire.frames import InputKind
+from zenoh_perception.settings import DetectorProcess, Settings
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import TagCodec
+from zenoh_perception.wire.ros_topics import input_role
 
 log = logging.getLogger(__name__)
 
@@ -151,28 +152,30 @@ class PerceptionService:
         self._endpoints = dict(endpoints or {})
         #: The service's totals: every stream's counts, and the frames refused before any.
         self.stats = ServiceStats(
-            frame_budget_ms=settings.frame_budget_ms,
-            frame_deadline_ms=settings.frame_deadline_ms or None,
+            frame_budget_ms=settings.limits.frame_budget_ms,
+            frame_deadline_ms=settings.limits.frame_deadline_ms or None,
         )
         self._session = session
-        self._ros = RosTransport(session, settings)
+        self._ros = RosTransport(session, settings.ros, settings.topic_keys())
         # Callbacks read the zid from here: asking the session while it closes raises.
         self._zid = str(session.zid())
         self._subscribe_inputs = subscribe_inputs
         self._stop = threading.Event()
-        self._gate = LogGate(settings.log_interval_s)
+        self._gate = LogGate(settings.logs.log_interval_s)
         self._log = LimitedLog(log, self._gate)
-        self._others = OtherServices(settings, self._gate, zid=self._zid, stop=self._stop)
+        self._others = OtherServices(
+            settings.outputs, settings.group, self._gate, zid=self._zid, stop=self._stop
+        )
         self._scheduler: Scheduler[Stream, Arrival] = Scheduler()
         #: What each stream is named, and whether lines name it.
-        self.naming = StreamNaming(settings, self._ros)
+        self.naming = StreamNaming(settings.inputs, self._ros)
         self._shared = Shared(
             settings=settings,
             session=session,
             ros=self._ros,
             publishers=PublisherPool(session, self._ros),
             scheduler=self._scheduler,
-            codec=TagCodec(settings.ros_package),
+            codec=TagCodec(settings.ros.ros_package),
             gate=self._gate,
             totals=self.stats,
             instance=self._zid,
@@ -206,7 +209,7 @@ class PerceptionService:
             return
         self._started = True
         # process-wide: set once, before any stream reads a frame
-        set_opencv_threads(self.settings.opencv_threads)
+        set_opencv_threads(self.settings.detection.opencv_threads)
         try:
             self._declare()
         except zenoh.ZError as err:
@@ -229,22 +232,27 @@ class PerceptionService:
         # the streams known before any frame: their outputs declared and their detectors'
         # child processes ready before the first frame
         self._streams.open_at_start()
-        if s.camera_info_key:
+        if s.inputs.camera_info_key:
             self._declared.extend(
                 self._ros.subscribe("camera_info", self._streams.camera_infos.on_sample)
             )
-        self._declared.append(session.declare_queryable(s.status_key, self._on_status_query))
-        token_key = f"{s.liveliness_key}/{session.zid()}"
+        self._declared.append(
+            session.declare_queryable(s.outputs.status_key, self._on_status_query)
+        )
+        token_key = f"{s.outputs.liveliness_key}/{session.zid()}"
         self._declared.append(session.liveliness().declare_token(token_key))
         # another service under the same liveliness key, there now or later, is reported:
         # two services on the same keys publish every tag twice
         self._declared.append(
             session.liveliness().declare_subscriber(
-                f"{s.liveliness_key}/*", self._others.on_token, history=True
+                f"{s.outputs.liveliness_key}/*", self._others.on_token, history=True
             )
         )
         self._threads = [guarded_thread(self._report, name="perception-stats", failed=self.failed)]
-        if s.frame_deadline_ms > 0 and s.detector_process != "always":
+        if (
+            s.limits.frame_deadline_ms > 0
+            and s.limits.detector_process is not DetectorProcess.ALWAYS
+        ):
             loop = partial(watch, self._streams.guarded, self._workers, self._scheduler, self._stop)
             self._threads.append(
                 guarded_thread(loop, name="perception-watchdog", failed=self.failed)
@@ -253,15 +261,15 @@ class PerceptionService:
             thread.start()
         for _ in range(self._worker_count()):
             self._workers.start_one()
-        if s.share_group:
+        if s.group.share_group:
             # only the announced streams the group gives this instance, each on its key
             self._group = StreamGroup(
                 session,
-                name=s.share_group,
-                liveliness_key=s.liveliness_key,
-                sources=camera_sources(s),
+                name=s.group.share_group,
+                liveliness_key=s.outputs.liveliness_key,
+                sources=camera_sources(s.inputs, s.ros),
                 fingerprint=settings_fingerprint(s),
-                capacity=s.max_streams,
+                capacity=s.inputs.max_streams,
                 take=self.hold,
                 release=self.release,
                 gate=self._gate,
@@ -275,20 +283,20 @@ class PerceptionService:
         # a subscription per key of each input (Zenoh has no union of key expressions)
         if self._ros.rmw_zenoh:
             # raw frames (msgpack attachment) keep coming on the plain keys
-            for key in s.entries("input_key"):
+            for key in s.inputs.input_entries:
                 self._declared.append(session.declare_subscriber(key, self._receiver(RAW)))
-            if s.input_key:
-                self._declared.extend(self._ros.subscribe("camera", self._receiver(CDR)))
-        elif s.input_key:
-            self._declared.extend(self._ros.subscribe("camera", self._receiver(RAW)))
-        if s.compressed_input_key:
+            if s.inputs.input_key:
+                self._declared.extend(self._ros.subscribe(input_role(CDR), self._receiver(CDR)))
+        elif s.inputs.input_key:
+            self._declared.extend(self._ros.subscribe(input_role(RAW), self._receiver(RAW)))
+        if s.inputs.compressed_input_key:
             self._declared.extend(
-                self._ros.subscribe("compressed_camera", self._receiver(COMPRESSED))
+                self._ros.subscribe(input_role(COMPRESSED), self._receiver(COMPRESSED))
             )
 
     def _worker_count(self) -> int:
-        if self.settings.workers > 0:
-            return self.settings.workers
+        if self.settings.limits.workers > 0:
+            return self.settings.limits.workers
         several = self.naming.most_streams > 1 or not self._subscribe_inputs
         return len(usable_cpus()) if several else 1
 
@@ -389,7 +397,7 @@ class PerceptionService:
 
     def _kind_of(self, key: str) -> InputKind:
         """The input whose samples ``key`` carries (SettingsError: none, or not concrete)."""
-        return kind_of(key, self.settings, self._ros)
+        return kind_of(key, self.settings.inputs, self._ros)
 
     def _name_of(self, key: str) -> str | None:
         """The name of the stream the concrete ``key`` belongs to; None when it matches no
@@ -417,7 +425,7 @@ class PerceptionService:
                 "rejected",
                 reason=TOO_MANY_STREAMS,
                 key=str(sample.key_expr),
-                max_streams=self.settings.max_streams,
+                max_streams=self.settings.inputs.max_streams,
             )
             return
         stream.arrive(arrival)
@@ -425,7 +433,7 @@ class PerceptionService:
     def _on_status_query(self, query: zenoh.Query) -> None:
         try:
             query.reply(
-                self.settings.status_key,
+                self.settings.outputs.status_key,
                 json.dumps(self.status()),
                 encoding=zenoh.Encoding.APPLICATION_JSON,
             )
@@ -453,7 +461,7 @@ class PerceptionService:
         )
 
     def _report(self) -> None:
-        interval = self.settings.stats_interval_s
+        interval = self.settings.logs.stats_interval_s
         next_report = time.monotonic() + interval if interval > 0 else math.inf
         while not self._stop.wait(min(_REAP_S, max(0.0, next_report - time.monotonic()))):
             self._streams.reap()
@@ -463,7 +471,7 @@ class PerceptionService:
             report.log_stats(
                 self.status(),
                 per_stream=self.naming.named,
-                input_key=",".join(self.settings.entries("input_key")),
+                input_key=",".join(self.settings.inputs.input_entries),
             )
 
 
@@ -475,8 +483,8 @@ def run(conf: zenoh.Config, settings: Settings, stop: threading.Event) -> int:
         SessionError: the Zenoh session cannot be opened or the service's keys declared.
 
     """
-    check_transport_limit(conf, settings)
-    session = open_session(conf, stop, log_interval_s=settings.log_interval_s)
+    check_transport_limit(conf, settings.limits)
+    session = open_session(conf, stop, log_interval_s=settings.logs.log_interval_s)
     if session is None:
         return 0
     endpoints, described = connect_endpoints(conf), session_endpoints(conf)

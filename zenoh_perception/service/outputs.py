@@ -119,7 +119,7 @@ class StreamOutputs:
         self._stream = stream
         self._failed = failed
         self._watched = watched
-        self._ros = RosOutputs(settings)
+        self._ros = RosOutputs(settings.outputs, settings.detection.dictionary)
         self._declared: list[TopicPublisher] = []
         self._tag: TopicPublisher | None = None
         self._record: TopicPublisher | None = None
@@ -144,10 +144,10 @@ class StreamOutputs:
         pool, s, name = self._pool, self._settings, self._stream
         self._tag = pool.ros("tag", name, express=True)
         self._declared.append(self._tag)
-        self._record = pool.record(output_key(s.record_key, name))
+        self._record = pool.record(output_key(s.outputs.record_key, name))
         self._declared.append(self._record)
         self._declared += self._ros.declare(_StreamPublishers(pool, name))
-        if s.debug_image:
+        if s.debug.debug_image:
             self._debug = pool.ros("debug_image", name, express=False)
             self._declared.append(self._debug)
             self._listener = self._debug.declare_matching_listener(self._on_debug_matching)
@@ -219,7 +219,7 @@ class StreamOutputs:
         """
         now = time.monotonic()
         s = self._settings
-        if self._debug is None or now - self._last_debug < 1.0 / s.debug_image_max_hz:
+        if self._debug is None or now - self._last_debug < 1.0 / s.debug.debug_image_max_hz:
             return
         self._last_debug = now
         try:
@@ -228,12 +228,12 @@ class StreamOutputs:
                 analysis.tags,
                 analysis.selected,
                 intrinsics=intrinsics,
-                tag_size=s.tag_size_for,
+                tag_size=s.selection.tag_size_for,
             )
             payload = bytes(
                 encode_compressed_image(
                     image,
-                    quality=s.debug_jpeg_quality,
+                    quality=s.debug.debug_jpeg_quality,
                     stamp_ns=stamp_ns,
                     frame_id=frame.frame_id,
                 )

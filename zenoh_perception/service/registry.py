@@ -29,7 +29,7 @@ class StreamRegistry:
         self._lock = threading.Lock()
         #: The CameraInfo subscription's callback and the infos kept for streams made later.
         self.camera_infos = CameraInfos(
-            shared.settings,
+            shared.settings.inputs,
             shared.totals,
             shared.gate,
             naming=shared.naming,
@@ -76,7 +76,7 @@ class StreamRegistry:
 
     def reap(self) -> None:
         """Forget the streams idle for ``stream_idle_s`` (but those known at start)."""
-        horizon = time.monotonic_ns() - int(self._shared.settings.stream_idle_s * 1e9)
+        horizon = time.monotonic_ns() - int(self._shared.settings.inputs.stream_idle_s * 1e9)
         kept = self._shared.naming.at_start
         with self._lock:
             idle = [

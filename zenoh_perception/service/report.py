@@ -14,6 +14,8 @@ from zenoh_perception.service.logs import kv
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stream import Stream
 from zenoh_perception.settings import Settings
+from zenoh_perception.wire.input_kinds import InputKind
+from zenoh_perception.wire.ros_topics import input_role
 
 log = logging.getLogger(__name__)
 
@@ -40,19 +42,19 @@ def log_started(
             version=__version__,
             zid=zid,
             **endpoints,
-            ros_transport=s.ros_transport,
-            input=",".join(ros.keys("camera")),
-            compressed_input=",".join(ros.keys("compressed_camera")),
-            tag=s.tag_key if named else ros.key("tag"),
-            record=s.record_key,
-            detector=s.detector,
-            dictionary=s.dictionary,
-            policy=s.policy,
-            metric=s.metric,
-            max_frame_bytes=s.max_frame_bytes,
-            max_frame_pixels=s.max_frame_pixels,
+            ros_transport=s.ros.ros_transport,
+            input=",".join(ros.keys(input_role(InputKind.CDR))),
+            compressed_input=",".join(ros.keys(input_role(InputKind.COMPRESSED))),
+            tag=s.outputs.tag_key if named else ros.key("tag"),
+            record=s.outputs.record_key,
+            detector=s.detection.detector,
+            dictionary=s.detection.dictionary,
+            policy=s.selection.policy,
+            metric=s.selection.metric,
+            max_frame_bytes=s.limits.max_frame_bytes,
+            max_frame_pixels=s.limits.max_frame_pixels,
             workers=workers,
-            max_streams=s.max_streams if named else 1,
+            max_streams=s.inputs.max_streams if named else 1,
         ),
     )
 

@@ -15,7 +15,7 @@ from typing import Final, Protocol
 from zenoh_perception.errors import ProcessingError
 from zenoh_perception.pipeline import Analysis
 from zenoh_perception.service.ros_transport import TopicPublisher
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Outputs
 from zenoh_perception.wire.detections import DETECTIONS_TOPIC, encode_detections
 from zenoh_perception.wire.tf import TF_TOPIC, encode_tf
 
@@ -44,14 +44,19 @@ class PublisherSource(Protocol):
 class RosOutputs:
     """Declares the outputs whose key is set, and encodes a frame's payload for each."""
 
-    def __init__(self, settings: Settings) -> None:
-        self._settings = settings
+    def __init__(self, outputs: Outputs, dictionary: str) -> None:
+        self._outputs = outputs
+        self._dictionary = dictionary  # the detections' family
         self._publishers: dict[str, TopicPublisher] = {}
 
     def declare(self, transport: PublisherSource) -> list[TopicPublisher]:
         """Declare a publisher per output whose key is set; they are the caller's to undeclare."""
+        keys = {
+            DETECTIONS_TOPIC.role: self._outputs.detections_key,
+            TF_TOPIC.role: self._outputs.tf_key,
+        }
         for topic in ROS_OUTPUTS:
-            if getattr(self._settings, topic.key_setting):
+            if keys[topic.role]:
                 self._publishers[topic.role] = transport.publisher(topic.role, express=True)
         return list(self._publishers.values())
 
@@ -64,12 +69,12 @@ class RosOutputs:
         encoders: dict[str, Callable[[], memoryview | None]] = {
             DETECTIONS_TOPIC.role: lambda: encode_detections(
                 analysis.tags,
-                family=self._settings.dictionary,
+                family=self._dictionary,
                 stamp_ns=stamp_ns,
                 frame_id=frame_id,
             ),
             TF_TOPIC.role: lambda: encode_tf(
-                analysis.tags, prefix=self._settings.tf_prefix, stamp_ns=stamp_ns, frame_id=frame_id
+                analysis.tags, prefix=self._outputs.tf_prefix, stamp_ns=stamp_ns, frame_id=frame_id
             ),
         }
         encoded: list[Encoded] = []

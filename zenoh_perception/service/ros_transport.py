@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import zenoh
 
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings import RosTransportKind
+from zenoh_perception.settings.sections import Ros
 from zenoh_perception.wire.bridge_liveliness import (
     BridgeQos,
     BridgeTokenError,
@@ -43,10 +44,10 @@ from zenoh_perception.wire.rmw_zenoh import (
     topic_key,
     type_hash,
 )
-from zenoh_perception.wire.ros_topics import Direction, RosTopic, ros_topic
-from zenoh_perception.wire.stream_keys import has_wildcard, key_entries, output_key
+from zenoh_perception.wire.ros_topics import INPUT_ROLES, Direction, RosTopic, ros_topic
+from zenoh_perception.wire.stream_keys import Keys, has_wildcard, key_entries, output_key
 
-RMW_ZENOH: str = "rmw_zenoh"
+RMW_ZENOH: str = RosTransportKind.RMW_ZENOH
 
 
 class TopicPublisher:
@@ -116,19 +117,21 @@ class _Subscription:
 
 
 class RosTransport:
-    """Declares the service's ROS topics on ``session`` as ``settings.ros_transport`` says."""
+    """Declares the service's ROS topics on ``session`` as ``ros.ros_transport`` says;
+    ``topic_keys``: each topic's key, by the name of its setting (``Settings.topic_keys``)."""
 
-    def __init__(self, session: zenoh.Session, settings: Settings) -> None:
+    def __init__(self, session: zenoh.Session, ros: Ros, topic_keys: Mapping[str, Keys]) -> None:
         self._session = session
-        self._settings = settings
-        self.rmw_zenoh = settings.ros_transport == RMW_ZENOH
+        self._ros = ros
+        self._topic_keys = topic_keys
+        self.rmw_zenoh = ros.ros_transport is RosTransportKind.RMW_ZENOH
         self.node = NodeInfo(
-            domain_id=settings.ros_domain_id,
+            domain_id=ros.ros_domain_id,
             session_id=str(session.zid()),
-            name=settings.ros_node_name,
-            namespace=settings.ros_namespace,
+            name=ros.ros_node_name,
+            namespace=ros.ros_namespace,
         )
-        self._store = make_typestore(settings.ros_package)
+        self._store = make_typestore(ros.ros_package)
         self._next_entity_id = self.node.node_id + 1
 
     def declare_node(self) -> zenoh.LivelinessToken | None:
@@ -151,7 +154,7 @@ class RosTransport:
 
     def keys(self, role: str) -> list[str]:
         """The Zenoh key (expression) of each entry of subscribed topic ``role``'s setting."""
-        entries = key_entries(getattr(self._settings, ros_topic(role).key_setting))
+        entries = key_entries(self._topic_keys[ros_topic(role).key_setting])
         return [self.key(role, entry=entry) for entry in entries]
 
     def topic_of(self, key: str) -> str:
@@ -191,7 +194,7 @@ class RosTransport:
         topic = ros_topic(role)
         assert topic.direction is Direction.SUBSCRIBE, role
         subscriptions = []
-        for entry in key_entries(getattr(self._settings, topic.key_setting)):
+        for entry in key_entries(self._topic_keys[topic.key_setting]):
             subscriber = self._session.declare_subscriber(self.key(role, entry=entry), callback)
             token = None
             if not has_wildcard(entry):
@@ -210,9 +213,9 @@ class RosTransport:
         if not self.rmw_zenoh:
             return None
         concrete = zenoh.KeyExpr(key)
-        for role in ("camera", "compressed_camera"):
+        for role in INPUT_ROLES:
             topic = ros_topic(role)
-            for entry in key_entries(getattr(self._settings, topic.key_setting)):
+            for entry in key_entries(self._topic_keys[topic.key_setting]):
                 # a concrete entry's token is declared with its subscription
                 if not has_wildcard(entry) or not zenoh.KeyExpr(
                     self.key(role, entry=entry)
@@ -230,7 +233,7 @@ class RosTransport:
         """The bridge's publisher token of ``publisher`` (bridge mode, ``bridge_announce``);
         None otherwise, or when its key cannot stand in a token (a stream named with a '§'):
         the bridge then offers the topic once a ROS node subscribes, as without the token."""
-        if self.rmw_zenoh or not self._settings.bridge_announce:
+        if self.rmw_zenoh or not self._ros.bridge_announce:
             return None
         user_data = f"typehash={self._hash(topic)};"
         try:
@@ -247,12 +250,12 @@ class RosTransport:
     def _setting(self, topic: RosTopic) -> str:
         """The key setting of ``topic``, which holds one key (an output, or an input that is
         not a list)."""
-        value = getattr(self._settings, topic.key_setting)
+        value = self._topic_keys[topic.key_setting]
         assert isinstance(value, str), (topic.key_setting, value)
         return value
 
     def _type(self, topic: RosTopic) -> str:
-        return topic.type_name(self._settings.ros_package)
+        return topic.type_name(self._ros.ros_package)
 
     def _hash(self, topic: RosTopic) -> str:
         return type_hash(self._store, self._type(topic))

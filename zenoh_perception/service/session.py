@@ -13,7 +13,7 @@ import zenoh
 from zenoh_perception.errors import SessionError, SettingsError, zenoh_error_text
 from zenoh_perception.service.logs import LimitedLog, kv
 from zenoh_perception.service.stats import LogGate
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings.sections import Limits
 
 # the service's logger: its lines keep one logger= name, whatever module writes them
 log = logging.getLogger(__name__)
@@ -56,7 +56,7 @@ def open_session(
     return None
 
 
-def check_transport_limit(conf: zenoh.Config, settings: Settings) -> None:
+def check_transport_limit(conf: zenoh.Config, limits: Limits) -> None:
     """Refuse a ``max_frame_bytes`` that the session's own message limit would drop.
 
     Raises:
@@ -68,9 +68,9 @@ def check_transport_limit(conf: zenoh.Config, settings: Settings) -> None:
         limit = int(json.loads(conf.get_json(MAX_MESSAGE_SIZE_PATH)))
     except (zenoh.ZError, ValueError, TypeError):
         return  # a Zenoh without that setting: nothing to compare with
-    if settings.max_frame_bytes + MESSAGE_OVERHEAD_BYTES > limit:
+    if limits.max_frame_bytes + MESSAGE_OVERHEAD_BYTES > limit:
         msg = (
-            f"max_frame_bytes = {settings.max_frame_bytes} does not fit Zenoh's "
+            f"max_frame_bytes = {limits.max_frame_bytes} does not fit Zenoh's "
             f"{MAX_MESSAGE_SIZE_PATH} = {limit} (a frame message needs "
             f"{MESSAGE_OVERHEAD_BYTES} bytes more): lower max_frame_bytes or raise it with "
             f"--cfg '{MAX_MESSAGE_SIZE_PATH}:N' here and on every router in between"

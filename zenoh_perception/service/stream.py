@@ -56,9 +56,10 @@ from zenoh_perception.service.mailbox import Lane, Scheduler
 from zenoh_perception.service.outputs import PublisherPool, StreamOutputs
 from zenoh_perception.service.ros_transport import RosTransport
 from zenoh_perception.service.stats import LogGate, ServiceStats
-from zenoh_perception.settings import Settings
+from zenoh_perception.settings import DetectorProcess, Settings
 from zenoh_perception.tags.pose import Intrinsics
-from zenoh_perception.wire.frames import Frame, InputKind, check_payload_size
+from zenoh_perception.wire.frames import Frame, check_payload_size
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.records import FrameRecord, TagCodec
 
 log = logging.getLogger(__name__)
@@ -134,8 +135,8 @@ class Stream:
         self.input_key = ""
         self._shared = shared
         self.stats = ServiceStats(
-            frame_budget_ms=s.frame_budget_ms,
-            frame_deadline_ms=s.frame_deadline_ms or None,
+            frame_budget_ms=s.limits.frame_budget_ms,
+            frame_deadline_ms=s.limits.frame_deadline_ms or None,
             parent=shared.totals,
         )
         self.lane: Lane[Stream, Arrival] = shared.scheduler.lane(self)
@@ -171,12 +172,15 @@ class Stream:
                 return
             shared, s = self._shared, self._shared.settings
             detector = shared.detector
-            if detector is None and s.frame_deadline_ms > 0:
-                factory, deadline_s = partial(detector_for, s), s.frame_deadline_ms / 1e3
+            if detector is None and s.limits.frame_deadline_ms > 0:
+                factory = partial(detector_for, s.detection)
+                deadline_s = s.limits.frame_deadline_ms / 1e3
                 # the detectors that take over from a stalled read keep grids away at once
-                wary = partial(detector_for, s, wary=True)
-                threads = s.opencv_threads  # the child processes' own, set when each starts
-                if s.detector_process == "always":
+                wary = partial(detector_for, s.detection, wary=True)
+                threads = (
+                    s.detection.opencv_threads
+                )  # the child processes' own, set when each starts
+                if s.limits.detector_process is DetectorProcess.ALWAYS:
                     self._isolated = IsolatedDetector(
                         factory,
                         deadline_s,
@@ -193,7 +197,7 @@ class Stream:
                         opencv_threads=threads,
                     )
                 detector = self._isolated
-            self._pipeline = Pipeline(s, detector)
+            self._pipeline = Pipeline(s.detection, s.selection, detector)
             if self._camera_info is not None:
                 self._pipeline.use_camera_info(self._camera_info[0], *self._camera_info[1])
             if self._isolated is not None and start_detector:
@@ -333,11 +337,11 @@ class Stream:
         s = self._shared.settings
         sample = arrival.sample
         # The size is known before the one copy out of Zenoh: an oversized frame costs nothing.
-        check_payload_size(len(sample.payload), s.max_frame_bytes)
+        check_payload_size(len(sample.payload), s.limits.max_frame_bytes)
         # colour only for a watched debug image; the detector reads grey
         grey = not self._outputs.debug_watched.is_set()
         return arrival.decode(
-            sample.payload.to_bytes(), sample.attachment, s.max_frame_pixels, grey
+            sample.payload.to_bytes(), sample.attachment, s.limits.max_frame_pixels, grey
         )
 
     def _detect(self, frame: Frame) -> Pending:
@@ -406,8 +410,8 @@ class Stream:
                 "convert_ms": analysis.convert_ms,
                 "detect_ms": analysis.detect_ms,
             },
-            source=kind.value,
-            stream=str(arrival.sample.key_expr),
+            source=kind,
+            input_key=str(arrival.sample.key_expr),
             instance=self._shared.instance,
         )
 
@@ -436,19 +440,19 @@ class Stream:
         tag is seen again)."""
         now = time.monotonic()
         s = self._shared.settings
-        if tagged or s.no_tag_hint_s <= 0:
+        if tagged or s.logs.no_tag_hint_s <= 0:
             self._tagless_since = None
             return
         if self._tagless_since is None:
             self._tagless_since = now
-        elif now - self._tagless_since >= s.no_tag_hint_s:
+        elif now - self._tagless_since >= s.logs.no_tag_hint_s:
             self._tagless_since = math.inf  # said: quiet until a tag is seen again
             log.info(
                 "event=no_tag_hint %s",
                 kv(
                     **self._named(),
-                    seconds=s.no_tag_hint_s,
-                    dictionary=s.dictionary,
+                    seconds=s.logs.no_tag_hint_s,
+                    dictionary=s.detection.dictionary,
                     detail="no tag in any frame: if tags are in view, run `zenoh-perception "
                     "probe` on a recording of this camera to find their dictionary",
                 ),

@@ -11,8 +11,7 @@ from collections.abc import Callable
 
 from zenoh_perception.service.logs import kv
 
-# the service's logger: its lines keep one logger= name, whatever module writes them
-log = logging.getLogger("zenoh_perception.service.node")
+log = logging.getLogger(__name__)
 
 
 def guarded_thread(

@@ -46,6 +46,7 @@ from zenoh_perception.wire.frames import (
     to_bgr,
 )
 from zenoh_perception.wire.image_header import JPEG_SOI, PNG_SIGNATURE, image_header_size
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.messages import (
     COMPRESSED_IMAGE_TYPE,
     TYPESTORE,
@@ -53,10 +54,10 @@ from zenoh_perception.wire.messages import (
     header,
     stamp_ns_of,
 )
-from zenoh_perception.wire.ros_topics import ros_topic
+from zenoh_perception.wire.ros_topics import input_role, ros_topic
 
 #: The input: the ROS topic of ``compressed_input_key``'s default and its type.
-COMPRESSED_INPUT_TOPIC: Final = ros_topic("compressed_camera")
+COMPRESSED_INPUT_TOPIC: Final = ros_topic(input_role(InputKind.COMPRESSED))
 
 Codec = Literal["jpeg", "png"]
 CODECS: Final[tuple[Codec, ...]] = ("jpeg", "png")

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from enum import StrEnum
 from typing import Any, Final, cast
 
 import cv2
@@ -61,17 +60,6 @@ MAX_FRAME_ID_CHARS: Final = 256
 MAX_SEQ: Final = 2**32 - 1
 #: A CDR stamp's nanoseconds are below one second (builtin_interfaces/Time).
 NANOSEC_PER_SEC: Final = 1_000_000_000
-
-
-class InputKind(StrEnum):
-    """What a frame input's samples carry, named as a frame's record names its source: raw
-    pixels with a msgpack attachment (a sample without one is read as sensor_msgs/Image CDR),
-    sensor_msgs/Image CDR (the camera topic on an rmw_zenoh graph), or
-    sensor_msgs/CompressedImage CDR."""
-
-    RAW = "raw"
-    CDR = "cdr"
-    COMPRESSED = "compressed"
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,6 +21,7 @@ import numpy as np
 from zenoh_perception.errors import MessageDecodeError
 from zenoh_perception.tags.pose import quaternion_from_rvec
 from zenoh_perception.tags.selection import TagMessage, TagObservation
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.messages import (
     DEFAULT_ROS_PACKAGE,
     deserialize,
@@ -113,22 +114,24 @@ class FrameRecord:
     selected: TagMessage
     tags: Sequence[TagObservation]
     timing_ms: Mapping[str, float]
-    source: str
-    #: The concrete key the frame came on (a wildcard input has a stream per key).
-    stream: str = ""
+    #: What the frame came as (the record's ``source``).
+    source: InputKind
+    #: The concrete key the frame came on (the record's ``stream``: a wildcard input has a
+    #: stream per key).
+    input_key: str = ""
     #: The Zenoh id of the service that answered.
     instance: str = ""
 
     def to_msgpack(self) -> bytes:
         record = {
-            "stream": self.stream,
+            "stream": self.input_key,
             "instance": self.instance,
             "stamp_ns": int(self.stamp_ns),
             "frame_id": self.frame_id,
             "seq": int(self.seq),
             "width": int(self.width),
             "height": int(self.height),
-            "source": self.source,
+            "source": self.source.value,
             "selected": message_fields(self.selected),
             "tags": [tag_entry(tag) for tag in self.tags],
             "timing": {key: round(float(value), 4) for key, value in self.timing_ms.items()},

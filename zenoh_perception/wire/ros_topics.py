@@ -2,9 +2,10 @@
 
 An entry names its ROS type, the setting that holds its Zenoh key in bridge mode (the key
 *is* the ROS topic name, relative, as zenoh-bridge-ros2dds maps ``/tag`` to ``tag``) and the
-QoS it advertises on an rmw_zenoh graph. The transport (``service/ros_transport.py``) turns
-an entry into a plain key (``bridge``) or an rmw_zenoh key with its liveliness token
-(``rmw_zenoh``); a new topic is one more entry here.
+QoS it advertises on an rmw_zenoh graph; a camera topic also names the input kinds
+(:class:`~zenoh_perception.wire.input_kinds.InputKind`) read on its keys. The transport
+(``service/ros_transport.py``) turns an entry into a plain key (``bridge``) or an rmw_zenoh
+key with its liveliness token (``rmw_zenoh``); a new topic is one more entry here.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Final
 
+from zenoh_perception.wire.input_kinds import InputKind
 from zenoh_perception.wire.messages import (
     APRILTAG_DETECTION_ARRAY_TYPE,
     CAMERA_INFO_TYPE,
@@ -41,6 +43,8 @@ class RosTopic:
     #: Subscriptions: match every type hash of ``ros_type`` (distributions differ), not only
     #: the one rosbags computes.
     any_hash: bool = False
+    #: A camera topic: the input kinds whose samples come on its keys.
+    inputs: tuple[InputKind, ...] = ()
 
     def type_name(self, ros_package: str) -> str:
         return self.ros_type.format(package=ros_package)
@@ -54,6 +58,9 @@ ROS_TOPICS: Final = (
         Direction.SUBSCRIBE,
         SENSOR_DATA_QOS,
         any_hash=True,
+        # raw frames are no ROS message: through the bridge they come on the same keys as
+        # the Image CDR it forwards, told apart by their attachment
+        inputs=(InputKind.RAW, InputKind.CDR),
     ),
     RosTopic(
         "compressed_camera",
@@ -62,6 +69,7 @@ ROS_TOPICS: Final = (
         Direction.SUBSCRIBE,
         SENSOR_DATA_QOS,
         any_hash=True,
+        inputs=(InputKind.COMPRESSED,),
     ),
     RosTopic(
         "camera_info",
@@ -96,3 +104,15 @@ def ros_topic(role: str) -> RosTopic:
         if topic.role == role:
             return topic
     raise KeyError(role)
+
+
+def input_role(kind: InputKind) -> str:
+    """The role of the camera topic on whose keys input ``kind``'s samples come."""
+    for topic in ROS_TOPICS:
+        if kind in topic.inputs:
+            return topic.role
+    raise KeyError(kind)
+
+
+#: The roles of the camera topics, each once.
+INPUT_ROLES: Final = tuple(topic.role for topic in ROS_TOPICS if topic.inputs)

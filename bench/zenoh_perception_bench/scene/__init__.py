@@ -45,13 +45,7 @@ from zenoh_perception_bench.scene._distractors import (
 )
 from zenoh_perception_bench.scene._effects import BACKGROUND_KINDS, EffectParams, Effects
 from zenoh_perception_bench.scene._errors import SceneError
-from zenoh_perception_bench.scene._generator import (
-    DistractorPose,
-    DistractorTruth,
-    MarkerTruth,
-    Scene,
-    SceneGenerator,
-)
+from zenoh_perception_bench.scene._generator import DistractorPose, SceneGenerator
 from zenoh_perception_bench.scene._geometry import (
     DEFAULT_HFOV_DEG,
     CameraModel,
@@ -59,6 +53,7 @@ from zenoh_perception_bench.scene._geometry import (
     square_corners,
 )
 from zenoh_perception_bench.scene._raster import render_markers
+from zenoh_perception_bench.scene._truth import DistractorTruth, MarkerTruth, Scene
 
 __all__ = [
     "BACKGROUND_KINDS",

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
-from typing import TypeVar
 
 import cv2
 import numpy as np
@@ -30,13 +29,11 @@ from zenoh_perception_bench.scene._effects import (
     Effects,
     apply_effects,
     background,
-    colourise,
     draw_clutter,
-    draw_rocks,
-    lowpass_noise,
 )
 from zenoh_perception_bench.scene._errors import SceneError
 from zenoh_perception_bench.scene._geometry import (
+    R_FACING,
     CameraModel,
     MarkerPose,
     f64,
@@ -57,99 +54,17 @@ from zenoh_perception_bench.scene._raster import (
     paste,
     to_bgra,
 )
+from zenoh_perception_bench.scene._truth import (
+    DistractorTruth,
+    MarkerTruth,
+    Scene,
+    Truth,
+    frozen,
+)
+from zenoh_perception_bench.scene._world import World, WorldObject
 
-_R_FACING = np.diag([1.0, -1.0, -1.0])
 _PLACEMENT_ATTEMPTS = 300
 _OVERLAP_GROWTH = 1.12
-
-
-def _frozen(array: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    out = np.array(array, dtype=np.float64)
-    out.flags.writeable = False
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class MarkerTruth:
-    """Ground truth of one rendered tag.
-
-    corners: (4, 2) outer corners of the black border, TL, TR, BR, BL in the marker's own frame
-    (cv2.aruco order). centre: (2,) projection of the marker's 3D centre (= intersection of the
-    diagonals; `corner_mean` is the mean of the corners, what a plain detector reports).
-    distance_m: norm of tvec. rvec / tvec: marker-to-camera pose in OpenCV's convention
-    (`square_corners(size_m)` object points). visible: all four corners inside the image
-    ([0, W-1] x [0, H-1]). occluded: a nearer object overlaps it (drive frames only).
-    """
-
-    tag_id: int
-    corners: npt.NDArray[np.float64]
-    centre: npt.NDArray[np.float64]
-    distance_m: float
-    size_m: float
-    rvec: npt.NDArray[np.float64]
-    tvec: npt.NDArray[np.float64]
-    visible: bool
-    occluded: bool = False
-
-    @property
-    def corner_mean(self) -> npt.NDArray[np.float64]:
-        """Mean of the four corners (2,)."""
-        out: npt.NDArray[np.float64] = self.corners.mean(axis=0)
-        return out
-
-    @property
-    def side_px(self) -> float:
-        """Mean side length of the corner quad in pixels."""
-        sides = np.linalg.norm(np.roll(self.corners, -1, axis=0) - self.corners, axis=1)
-        return float(sides.mean())
-
-
-@dataclass(frozen=True, eq=False)
-class DistractorTruth:
-    """A marker-like object that is NOT a tag. corners: (4, 2) outer corners of its dark core
-    square (where a detector would put a false tag); mimic_id: the id whose code pattern it
-    hides (None for "decoy"); other fields as in `MarkerTruth`."""
-
-    kind: str
-    corners: npt.NDArray[np.float64]
-    centre: npt.NDArray[np.float64]
-    distance_m: float
-    size_m: float
-    mimic_id: int | None
-    visible: bool
-
-    @property
-    def side_px(self) -> float:
-        """Mean side length of the core quad in pixels."""
-        sides = np.linalg.norm(np.roll(self.corners, -1, axis=0) - self.corners, axis=1)
-        return float(sides.mean())
-
-
-# Truth of either kind (what `SceneGenerator._sheared` maps to itself).
-_Truth = TypeVar("_Truth", MarkerTruth, DistractorTruth)
-
-
-@dataclass(frozen=True, eq=False)
-class Scene:
-    """One synthetic frame: BGRA uint8 (H, W, 4) C-contiguous image plus exact truth."""
-
-    image: npt.NDArray[np.uint8]
-    camera: CameraModel
-    markers: tuple[MarkerTruth, ...]
-    distractors: tuple[DistractorTruth, ...]
-    effects: EffectParams
-    dictionary: str
-    index: int = 0
-    time_s: float = 0.0
-
-    @property
-    def ids(self) -> tuple[int, ...]:
-        """Tag ids of the rendered markers."""
-        return tuple(m.tag_id for m in self.markers)
-
-    def gray(self) -> npt.NDArray[np.uint8]:
-        """The image converted to single-channel gray (what ArUco detectors consume)."""
-        return np.asarray(cv2.cvtColor(self.image, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
 
 
 @dataclass(frozen=True)
@@ -175,7 +90,7 @@ class DistractorPose:
     @property
     def rotation(self) -> npt.NDArray[np.float64]:
         """Object-to-camera rotation."""
-        return _R_FACING.copy() if self.rvec is None else rodrigues(self.rvec)
+        return R_FACING.copy() if self.rvec is None else rodrigues(self.rvec)
 
 
 @dataclass(frozen=True)
@@ -383,7 +298,7 @@ class SceneGenerator:
             check_kinds(kinds)
         self._check_counts(n_tags, n_distractors, size_m, (1.0, 2.0))
         chosen = self._choose_ids(n_tags, ids)
-        world = _World.build(
+        world = World.build(
             self._rng,
             self.camera,
             self.effects,
@@ -575,7 +490,7 @@ class SceneGenerator:
             time_s=time_s,
         )
 
-    def _sheared(self, truth: _Truth, shift_px: float) -> _Truth:
+    def _sheared(self, truth: Truth, shift_px: float) -> Truth:
         """`truth` with corners and centre where the rolling shutter moved them (the pose is
         the one at the middle row's readout)."""
         if abs(shift_px) < 1e-3:
@@ -584,8 +499,8 @@ class SceneGenerator:
         centre = shear_points(truth.centre, shift_px, self.camera.height)[0]
         return replace(
             truth,
-            corners=_frozen(corners),
-            centre=_frozen(centre),
+            corners=frozen(corners),
+            centre=frozen(centre),
             visible=self.camera.contains(corners),
         )
 
@@ -605,12 +520,12 @@ class SceneGenerator:
         tvec = pose.tvec
         return MarkerTruth(
             tag_id=pose.tag_id,
-            corners=_frozen(corners),
-            centre=_frozen(self.camera.project(tvec)[0]),
+            corners=frozen(corners),
+            centre=frozen(self.camera.project(tvec)[0]),
             distance_m=float(np.linalg.norm(tvec)),
             size_m=pose.size_m,
-            rvec=_frozen(rvec_of(pose.rotation)),
-            tvec=_frozen(tvec),
+            rvec=frozen(rvec_of(pose.rotation)),
+            tvec=frozen(tvec),
             visible=self.camera.contains(corners),
             occluded=occluded,
         )
@@ -631,8 +546,8 @@ class SceneGenerator:
         paste(canvas, art.patch, homography(art.core, corners), pixel_art=False)
         return DistractorTruth(
             kind=pose.kind,
-            corners=_frozen(corners),
-            centre=_frozen(self.camera.project(position)[0]),
+            corners=frozen(corners),
+            centre=frozen(self.camera.project(position)[0]),
             distance_m=float(np.linalg.norm(position)),
             size_m=pose.size_m,
             mimic_id=pose.mimic_id,
@@ -640,7 +555,7 @@ class SceneGenerator:
         )
 
     def _drive_frames(
-        self, world: _World, n_frames: int, fps: float, speed_mps: float, shake_deg: float
+        self, world: World, n_frames: int, fps: float, speed_mps: float, shake_deg: float
     ) -> Iterator[Scene]:
         rng = self._rng
         # per axis (yaw, pitch, roll): three sinusoids, scaled to an RMS of shake_deg
@@ -675,7 +590,7 @@ class SceneGenerator:
     def _draw_post(
         self,
         canvas: npt.NDArray[np.uint8],
-        obj: _WorldObject,
+        obj: WorldObject,
         ground_y: float,
         r_cw: npt.NDArray[np.float64],
         centre: npt.NDArray[np.float64],
@@ -695,7 +610,7 @@ class SceneGenerator:
         cv2.fillPoly(canvas, [pts], obj.post_colour, cv2.LINE_AA, shift=4)
 
     def _world_item(
-        self, obj: _WorldObject, r_cw: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]
+        self, obj: WorldObject, r_cw: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]
     ) -> _Item | None:
         t = r_cw @ (obj.position - centre)
         position = (float(t[0]), float(t[1]), float(t[2]))
@@ -709,179 +624,3 @@ class SceneGenerator:
         if item is not None:
             item.seed = obj.seed
         return item
-
-
-@dataclass(frozen=True)
-class _WorldObject:
-    position: npt.NDArray[np.float64]
-    rotation: npt.NDArray[np.float64]
-    size_m: float
-    tag_id: int = -1
-    kind: str = ""
-    mimic_id: int | None = None
-    ratio: float = 1.0
-    seed: int = 0
-    post_colour: tuple[float, float, float] = (60.0, 60.0, 60.0)
-
-
-@dataclass(frozen=True)
-class _World:
-    """Static world of a drive: tags, distractors, ground texture, sky, effect values."""
-
-    objects: tuple[_WorldObject, ...]
-    texture: npt.NDArray[np.uint8]
-    texel_m: float
-    x_min: float
-    z_max: float
-    ground_y: float
-    far_colour: tuple[float, float, float]
-    sky: npt.NDArray[np.uint8]
-    params: EffectParams
-
-    @classmethod
-    def build(
-        cls,
-        rng: np.random.Generator,
-        camera: CameraModel,
-        effects: Effects,
-        *,
-        ids: list[int],
-        n_distractors: int,
-        kinds: tuple[str, ...],
-        size_m: tuple[float, float],
-        travel_m: float,
-        camera_height_m: float,
-        n_ids: int,
-    ) -> _World:
-        params = effects.sample(rng)
-        n_objects = len(ids) + n_distractors
-        far = travel_m + 7.0
-        slots = rng.permutation(max(n_objects, 1))
-        objects: list[_WorldObject] = []
-        for n in range(n_objects):
-            z = 3.0 + (far - 3.0) * (float(slots[n]) + float(rng.uniform(0.15, 0.85))) / n_objects
-            side = 1.0 if rng.random() < 0.5 else -1.0
-            x = side * float(rng.uniform(0.3, 1.6))
-            size = float(rng.uniform(size_m[0], size_m[1]))
-            lift = float(rng.uniform(size * 0.6 + 0.05, max(size * 0.6 + 0.1, 1.0)))
-            y = camera_height_m - lift
-            rotation = (
-                rot_y(float(rng.uniform(-35, 35)) - side * 10.0)
-                @ rot_x(float(rng.uniform(-12, 12)))
-                @ rot_z(float(rng.uniform(-12, 12)))
-                @ _R_FACING
-            )
-            seed = int(rng.integers(2**31))
-            grey = float(rng.uniform(30, 120))
-            post = (grey, grey + float(rng.uniform(-10, 10)), grey + float(rng.uniform(-10, 10)))
-            position = np.array([x, y, z])
-            if n < len(ids):
-                objects.append(
-                    _WorldObject(
-                        position, rotation, size, tag_id=ids[n], seed=seed, post_colour=post
-                    )
-                )
-            else:
-                kind = kinds[int(rng.integers(len(kinds)))]
-                mimic = None if kind == "decoy" else int(rng.integers(n_ids))
-                ratio = plate_ratio(kind, rng)
-                objects.append(
-                    _WorldObject(
-                        position,
-                        rotation,
-                        size,
-                        kind=kind,
-                        mimic_id=mimic,
-                        ratio=ratio,
-                        seed=seed,
-                        post_colour=post,
-                    )
-                )
-        texel = max(0.03, (far + 30.0) / 4096.0)
-        width_m = 24.0
-        tex_w = round(width_m / texel)
-        tex_h = round((far + 32.0) / texel)
-        index = lowpass_noise(tex_w, tex_h, rng, float(rng.uniform(0.4, 2.0)) / texel, octaves=4)
-        low = np.clip(rng.uniform(40, 100) + rng.uniform(-15, 15, 3), 0, 255)
-        high = np.clip(rng.uniform(120, 200) + rng.uniform(-15, 15, 3), 0, 255)
-        texture = colourise(index, low, high)
-        area_m2 = width_m * (far + 32.0)
-        draw_rocks(texture, round(area_m2 * 0.6), rng, (0.03 / texel, 0.35 / texel))
-        draw_clutter(texture, params.clutter, rng, size=(0.3 * texel, 1.5 * texel))
-        texture = np.asarray(cv2.GaussianBlur(texture, (0, 0), 0.6), dtype=np.uint8)
-        mean = texture.reshape(-1, 3).mean(axis=0)
-        top = np.clip(rng.uniform(170, 230) + np.array([25.0, 5.0, -15.0]), 0, 255)
-        bottom = np.clip(rng.uniform(190, 245) + rng.uniform(-10, 10, 3), 0, 255)
-        column = np.linspace(0.0, 1.0, camera.height)[:, None] * (bottom - top) + top
-        sky = np.ascontiguousarray(
-            np.broadcast_to(
-                np.rint(column).astype(np.uint8)[:, None, :], (camera.height, camera.width, 3)
-            )
-        )
-        return cls(
-            objects=tuple(objects),
-            texture=texture,
-            texel_m=texel,
-            x_min=-width_m / 2.0,
-            z_max=far + 30.0,
-            ground_y=camera_height_m,
-            far_colour=(float(mean[0]), float(mean[1]), float(mean[2])),
-            sky=sky,
-            params=params,
-        )
-
-    def ground_view(
-        self, camera: CameraModel, r_cw: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]
-    ) -> npt.NDArray[np.uint8]:
-        """BGR view of ground and sky from a camera at `centre` with world-to-camera `r_cw`."""
-        # texel (u, v) -> world (x_min + u * texel, ground_y, z_max - v * texel)
-        a = np.array(
-            [
-                [self.texel_m, 0.0, self.x_min],
-                [0.0, 0.0, self.ground_y],
-                [0.0, -self.texel_m, self.z_max],
-            ]
-        )
-        a[:, 2] -= centre
-        h = camera.matrix @ r_cw @ a
-        view = np.asarray(
-            cv2.warpPerspective(
-                self.texture,
-                h,
-                camera.size,
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=self.far_colour,
-            ),
-            dtype=np.uint8,
-        )
-        # ground where the viewing ray points down (towards +y world): l . (x, y, 1) > 0
-        normal = r_cw @ np.array([0.0, 1.0, 0.0])
-        line = np.linalg.inv(camera.matrix).T @ normal
-        w, hgt = camera.width, camera.height
-        rect = [(-1.0, -1.0), (w + 1.0, -1.0), (w + 1.0, hgt + 1.0), (-1.0, hgt + 1.0)]
-        sky_poly = _clip_halfplane(rect, line)
-        if sky_poly:
-            mask = np.zeros((hgt, w), dtype=np.uint8)
-            pts = np.rint(np.array(sky_poly) * 16).astype(np.int32)
-            cv2.fillPoly(mask, [pts], 255, cv2.LINE_8, shift=4)
-            view = np.asarray(cv2.copyTo(self.sky, mask, view), dtype=np.uint8)
-        return view
-
-
-def _clip_halfplane(
-    polygon: list[tuple[float, float]], line: npt.NDArray[np.float64]
-) -> list[tuple[float, float]]:
-    """Part of a convex polygon where line . (x, y, 1) <= 0 (Sutherland-Hodgman, one edge)."""
-    out: list[tuple[float, float]] = []
-    n = len(polygon)
-    for i in range(n):
-        p, q = polygon[i], polygon[(i + 1) % n]
-        vp = line[0] * p[0] + line[1] * p[1] + line[2]
-        vq = line[0] * q[0] + line[1] * q[1] + line[2]
-        if vp <= 0:
-            out.append(p)
-        if (vp <= 0) != (vq <= 0):
-            s = vp / (vp - vq)
-            out.append((p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1])))
-    return out

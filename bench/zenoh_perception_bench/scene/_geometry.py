@@ -17,7 +17,7 @@ DEFAULT_HFOV_DEG = 90.0
 
 # A marker that faces the camera upright: marker x = camera x, marker y (up) = -camera y,
 # marker z (out of the printed face) = -camera z. This is the rotation of pi about x.
-_R_FACING = np.diag([1.0, -1.0, -1.0])
+R_FACING = np.diag([1.0, -1.0, -1.0])
 
 # Points closer than this to the camera plane are treated as behind the camera.
 _NEAR_M = 0.05
@@ -206,7 +206,7 @@ class MarkerPose:
         if self.rvec is not None:
             return rodrigues(self.rvec)
         tilt = rot_y(self.yaw_deg) @ rot_x(self.pitch_deg) @ rot_z(self.roll_deg)
-        out: npt.NDArray[np.float64] = tilt @ _R_FACING
+        out: npt.NDArray[np.float64] = tilt @ R_FACING
         return out
 
     @property
