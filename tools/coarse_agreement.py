@@ -34,7 +34,8 @@ from zenoh_perception.pipeline import Pipeline
 from zenoh_perception.settings import Settings
 from zenoh_perception.wire.frames import ENCODINGS, Frame
 from zenoh_perception_bench.approach import approach_frames
-from zenoh_perception_bench.dataset import data_folder, frames, load_manifest
+from zenoh_perception_bench.footage import data_folder, frames
+from zenoh_perception_bench.manifest import load_manifest
 
 SEEDS = (1, 2, 3)
 

@@ -38,9 +38,11 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
+from zenoh_perception.detect.rules import Measures, Thresholds, veto_reasons
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import Measures, Thresholds, measure, veto_reasons
-from zenoh_perception_bench.dataset import TooLargeError, data_folder, frames, load_manifest
+from zenoh_perception.detect.verify import measure
+from zenoh_perception_bench.footage import data_folder, frames
+from zenoh_perception_bench.manifest import TooLargeError, load_manifest
 
 
 @dataclass(frozen=True, slots=True)

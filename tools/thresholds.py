@@ -14,7 +14,7 @@ and the repository its item came from (the manifest's ``repo``).
 For every threshold (:data:`RULES`): its current value, the value at the nearest true tag on
 the whole corpus (each threshold with the others at their current values), the distance in
 the rule's units and as a ratio, and the false ids it vetoes (of which no other rule's
-condition vetoes: "alone"; QUIET_MIN and QUIET_LOCAL_MIN form one condition, as STROKES_MAX
+condition vetoes: "alone"; QUIET_MIN and the local bounds form one condition, as STROKES_MAX
 and its gate do).
 
 Leave one repository out: for each repository R, every threshold is fitted on the true tags of
@@ -37,281 +37,29 @@ import argparse
 import json
 import pickle
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, Final
 
 import numpy as np
 
-from zenoh_perception.detect.factory import make_detector
-from zenoh_perception.detect.regions import seen_again
-from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import (
-    Measures,
-    Thresholds,
-    Verifier,
-    dark_ring,
-    measure,
-    quiet_waived,
-    strokes_read,
-    typical_quiet,
-    veto_reasons,
+from tools.proposals import (
+    CURRENT,
+    DEFAULT_DICTIONARY,
+    RULES,
+    Proposal,
+    Read,
+    Rule,
+    collect,
+    vetoes,
+    with_changes,
 )
-from zenoh_perception.pipeline import TagFinder
-from zenoh_perception.settings import Settings
-from zenoh_perception.wire.frames import Frame
-from zenoh_perception_bench.dataset import (
-    TooLargeError,
-    data_folder,
-    frames,
-    load_manifest,
-)
-from zenoh_perception_bench.runners import BGRA8
-from zenoh_perception_bench.scoring import Labels, Score
+from zenoh_perception.detect.rules import Thresholds, veto_reasons
+from zenoh_perception_bench.scoring import Score
 
-#: The dictionary whose false ids the study reports apart (the service's default).
-DEFAULT_DICTIONARY: Final = "DICT_4X4_50"
-CURRENT: Final = Thresholds()
 #: The fit without a margin puts a threshold this share beyond the nearest true tag.
 BARE_EPSILON: Final = 1e-9
-
-
-@dataclass(frozen=True, slots=True)
-class Rule:
-    """One threshold: the :class:`Thresholds` field, the constant of verify.py, the veto
-    reason it gives, and on which side it vetoes: ``upper``, a value above the threshold
-    (at or above for a rule's gate), ``lower``, a value below it."""
-
-    field: str
-    constant: str
-    reason: str
-    #: the rule's condition this threshold is part of (two thresholds share one: QUIET_MIN
-    #: and QUIET_LOCAL_MIN, STROKES_MAX and its gate)
-    condition: str
-    bound: Literal["upper", "lower"]
-    #: The value this threshold is compared with on a detection, with the other thresholds
-    #: at ``thresholds``; None when, with those, no value of this one vetoes the detection.
-    value: Callable[[Measures, Thresholds], float | None]
-
-
-#: Every threshold of verify.py's rules, in the order the rules are checked.
-RULES: Final = (
-    Rule(
-        "min_px_per_cell",
-        "MIN_PX_PER_CELL",
-        "resolution",
-        "resolution",
-        "lower",
-        lambda m, t: m.px_per_cell,
-    ),
-    Rule(
-        "quiet_min",
-        "QUIET_MIN",
-        "quiet_zone",
-        "quiet below",
-        "lower",
-        lambda m, t: (
-            m.quiet if m.quiet_local < t.quiet_local_min and not quiet_waived(m, t) else None
-        ),
-    ),
-    Rule("quiet_max", "QUIET_MAX", "quiet_zone", "quiet above", "upper", lambda m, t: m.quiet),
-    Rule(
-        "quiet_local_min",
-        "QUIET_LOCAL_MIN",
-        "quiet_zone",
-        "quiet below",
-        "lower",
-        lambda m, t: m.quiet_local if m.quiet < t.quiet_min and not quiet_waived(m, t) else None,
-    ),
-    Rule(
-        "quiet_waiver_px_per_cell",
-        "QUIET_WAIVER_PX_PER_CELL",
-        "quiet_zone",
-        "quiet below",
-        "lower",
-        lambda m, t: (
-            m.px_per_cell
-            if dark_ring(m, t) and m.margin is not None and m.margin >= t.quiet_waiver_bits
-            else None
-        ),
-    ),
-    Rule(
-        "quiet_waiver_bits",
-        "QUIET_WAIVER_BITS",
-        "quiet_zone",
-        "quiet below",
-        "lower",
-        lambda m, t: (
-            m.margin if dark_ring(m, t) and m.px_per_cell >= t.quiet_waiver_px_per_cell else None
-        ),
-    ),
-    Rule(
-        "border_light_max",
-        "BORDER_LIGHT_MAX",
-        "border",
-        "border",
-        "upper",
-        lambda m, t: m.border_light,
-    ),
-    Rule("grid_ratio_max", "GRID_RATIO_MAX", "grid", "grid", "upper", lambda m, t: m.grid_ratio),
-    Rule(
-        "strokes_max",
-        "STROKES_MAX",
-        "strokes",
-        "strokes",
-        "upper",
-        lambda m, t: m.strokes if strokes_read(m, t) else None,
-    ),
-    Rule(
-        "strokes_min_px_per_cell",
-        "STROKES_MIN_PX_PER_CELL",
-        "strokes",
-        "strokes",
-        "upper",
-        lambda m, t: m.px_per_cell if m.strokes > t.strokes_max else None,
-    ),
-    Rule(
-        "margin_min_bits",
-        "MARGIN_MIN_BITS",
-        "margin",
-        "margin",
-        "lower",
-        lambda m, t: None if m.margin is None or typical_quiet(m) else m.margin,
-    ),
-)
-
-
-def _with(thresholds: Thresholds, **changes: float) -> Thresholds:
-    values = {f.name: getattr(thresholds, f.name) for f in fields(thresholds)}
-    return Thresholds(**{**values, **changes})
-
-
-def vetoes(rule: Rule, measures: Measures, thresholds: Thresholds) -> bool:
-    """Whether ``rule``'s threshold alone (the others at ``thresholds``) vetoes a detection
-    of ``measures``."""
-    value = rule.value(measures, thresholds)
-    if value is None:
-        return False
-    limit = float(getattr(thresholds, rule.field))
-    if rule.field == "strokes_min_px_per_cell":
-        return strokes_read(measures, thresholds)  # at or above the gate: the same product
-    return value > limit if rule.bound == "upper" else value < limit
-
-
-# -- what the corpus gives -------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class Proposal:
-    """One marker OpenCV proposed on a read frame."""
-
-    detection: Detection
-    truth: bool | None  # its id labelled there; None: unlabelled on a frame with unread markers
-    measures: Measures
-    #: the proposals of the stream's previous read (:attr:`Read.previous`) it is the same
-    #: marker as (:func:`~zenoh_perception.detect.regions.seen_again`), by index
-    before: tuple[int, ...] = ()
-
-
-@dataclass(frozen=True, slots=True)
-class Read:
-    """One frame read in one dictionary, with at least one proposal."""
-
-    repo: str
-    dictionary: str
-    labels: Labels
-    proposals: tuple[Proposal, ...]
-    #: the stream's read before this one, when the verifier's memory carries over to it
-    #: (same stream, same frame size, no read with proposals in between), by index
-    previous: int | None = None
-
-
-def truth(tag_id: int, labels: Labels) -> bool | None:
-    """True when ``tag_id`` is labelled, False when not and nothing unread is on the frame,
-    None when it may be one of the frame's unread markers."""
-    if tag_id in labels.markers:
-        return True
-    return None if labels.unknown_markers > 0 else False
-
-
-def collect(
-    manifest: Path,
-    data: Path | None = None,
-    *,
-    max_video_frames: int = 600,
-    settings: Settings | None = None,
-    log: Callable[[str], None] | None = None,
-) -> tuple[list[Read], int]:
-    """Every read of the corpus with its proposals, and how many proposals the replay under
-    the current constants judged otherwise than the service's verifier (0 expected)."""
-    settings = settings if settings is not None else Settings()
-    items = load_manifest(manifest)
-    folder = data_folder(manifest, data)
-    raw = json.loads(manifest.read_text(encoding="utf-8"))["items"]
-    repos = {str(r["name"]): str(r.get("repo", "unknown")) for r in raw}
-    # as bench --dataset reads them: a negative in every dictionary of the labelled items
-    dictionaries = sorted({i.dictionary for i in items if not i.negative}) or [DEFAULT_DICTIONARY]
-    finders: dict[str, tuple[TagFinder, Verifier]] = {}
-    last: dict[str, tuple[int, tuple[int, ...]]] = {}  # stream -> its last read, frame shape
-    reads: list[Read] = []
-    mismatches = 0
-    for number, item in enumerate(items, 1):
-        if log is not None:
-            log(f"[{number}/{len(items)}] {item.name}")
-        tested = dictionaries if item.negative else [item.dictionary]
-        videos = item.kind != "image"
-        try:
-            for image in frames(item, folder, max_video_frames, settings.limits.max_frame_pixels):
-                for dictionary in tested:
-                    stream = f"video:{item.name}:{dictionary}" if videos else f"stills:{dictionary}"
-                    if stream not in finders:
-                        detector = make_detector(
-                            settings.detection.detector,
-                            dictionary,
-                            full_scan_period=settings.detection.full_scan_period,
-                            second_look=settings.detection.second_look,
-                        )
-                        verifier = Verifier(dictionary)  # check() keeps no memory
-                        finders[stream] = (
-                            TagFinder(
-                                detector,
-                                settings.detection.min_tag_side_px,
-                                verifier if settings.detection.verify else None,
-                                settings.detection.confirm_frames,
-                            ),
-                            verifier,
-                        )
-                    finder, verifier = finders[stream]
-                    # TagFinder.find up to its screen: the detector's read, then the second look
-                    # the service takes after the frame's tag, where it takes one
-                    gray, found, _ = finder.detect(Frame(image, BGRA8, None, "tool", None))
-                    if finder.judges_one_by_one:
-                        found += finder.look_again()
-                    if not found:
-                        continue
-                    before = last.get(stream)
-                    previous = before[0] if before is not None and before[1] == gray.shape else None
-                    shown = reads[previous].proposals if previous is not None else ()
-                    proposals = []
-                    for detection in found:
-                        measures = measure(gray, detection, dictionary)
-                        replayed = veto_reasons(measures, CURRENT)
-                        if (replayed[0] if replayed else None) != verifier.check(gray, detection):
-                            mismatches += 1
-                        again = tuple(
-                            k for k, p in enumerate(shown) if seen_again(detection, p.detection)
-                        )
-                        proposals.append(
-                            Proposal(detection, truth(detection.tag_id, item), measures, again)
-                        )
-                    last[stream] = (len(reads), gray.shape)
-                    reads.append(
-                        Read(repos[item.name], dictionary, item, tuple(proposals), previous)
-                    )
-        except TooLargeError:
-            continue  # refused by the bench and the service alike
-    return reads, mismatches
 
 
 # -- the fit and the replay ------------------------------------------------------------------
@@ -369,7 +117,7 @@ def fit(
             # pixels per cell times the cells) or vetoes at its value (a gate) keeps it too
             value *= 1.0 + BARE_EPSILON if rule.bound == "upper" else 1.0 - BARE_EPSILON
         changes[rule.field] = value
-    return _with(CURRENT, **changes)
+    return with_changes(CURRENT, **changes)
 
 
 def replay(
@@ -525,6 +273,111 @@ def rule_rows(reads: Sequence[Read], rules: Sequence[Rule] = RULES) -> list[Rule
     return rows
 
 
+#: The bands of pixels a cell along a marker's shortest side the rules are studied in (1.5-3
+#: px a cell is where boards of small markers and far tags live).
+CELL_BANDS: Final = ((0.0, 1.5), (1.5, 2.0), (2.0, 2.5), (2.5, 3.0), (3.0, 4.0), (4.0, 6.0))
+#: The thresholds that are themselves a size (pixels a cell): their band is what they decide.
+SIZE_GATES: Final = frozenset(
+    {
+        "min_px_per_cell",
+        "quiet_small_px_per_cell",
+        "quiet_waiver_px_per_cell",
+        "strokes_min_px_per_cell",
+    }
+)
+
+
+@dataclass(slots=True)
+class BandRow:
+    """One threshold in one band of pixels a cell (from ``low``, below ``high``)."""
+
+    constant: str
+    low: float
+    high: float
+    current: float
+    true_reaching: int  # true tags in the band the threshold can veto (the others as they are)
+    nearest_true: float | None
+    nearest_repo: str | None
+    true_vetoed: int  # true tags in the band the threshold vetoes now
+    #: true tags in the band lost when its bound there is fitted leaving their repository
+    #: out (the training's nearest true tag in the band, the constant's margin kept)
+    lost_out_of_sample: int
+    false_vetoed: int  # false ids in the band the threshold vetoes now
+
+
+def band_rows(
+    reads: Sequence[Read], rules: Sequence[Rule] = RULES, bands: Sequence[tuple[float, float]] = ()
+) -> list[BandRow]:
+    """Each threshold that is not a size, in each band of pixels a cell (default:
+    :data:`CELL_BANDS` and one from 6 up) where a true tag can reach it or it vetoes a false
+    id: the nearest true tag there, and a bound fitted per band leaving one repository out."""
+    bands = bands or (*CELL_BANDS, (CELL_BANDS[-1][1], float("inf")))
+    located = [(r.repo, p) for r in reads for p in r.proposals if p.truth is not None]
+    rows = []
+    for rule in rules:
+        if rule.field in SIZE_GATES:
+            continue
+        current = float(getattr(CURRENT, rule.field))
+        for low, high in bands:
+            inside = [(repo, p) for repo, p in located if low <= p.measures.px_per_cell < high]
+            true = [
+                (repo, p)
+                for repo, p in inside
+                if p.truth and rule.value(p.measures, CURRENT) is not None
+            ]
+            false = sum(1 for _, p in inside if not p.truth and vetoes(rule, p.measures, CURRENT))
+            if not true and not false:
+                continue
+            nearest = nearest_true(rule, (p for _, p in true))
+            where = next(
+                (repo for repo, p in true if rule.value(p.measures, CURRENT) == nearest), None
+            )
+            lost = 0
+            for held in sorted({repo for repo, _ in true}):
+                train = nearest_true(rule, (p for repo, p in true if repo != held))
+                limits = with_changes(CURRENT, **{rule.field: fitted(current, nearest, train)})
+                lost += sum(
+                    1 for repo, p in true if repo == held and vetoes(rule, p.measures, limits)
+                )
+            rows.append(
+                BandRow(
+                    constant=rule.constant,
+                    low=low,
+                    high=high,
+                    current=current,
+                    true_reaching=len(true),
+                    nearest_true=nearest,
+                    nearest_repo=where,
+                    true_vetoed=sum(1 for _, p in true if vetoes(rule, p.measures, CURRENT)),
+                    lost_out_of_sample=lost,
+                    false_vetoed=false,
+                )
+            )
+    return rows
+
+
+def format_bands(rows: Sequence[BandRow]) -> str:
+    """The per-band table, markdown."""
+    lines = [
+        "Per band of pixels a cell (shortest side): the nearest true tag, the true tags and"
+        " false ids the threshold vetoes there, and the true tags lost with the band's bound"
+        " fitted leaving their repository out:",
+        "",
+        "| threshold | px a cell | current | true tags it can veto | nearest true tag"
+        " (repository) | true vetoed | lost out of sample | false ids vetoed |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        high = "up" if row.high == float("inf") else _num(row.high)
+        where = f"{_num(row.nearest_true)} ({row.nearest_repo})" if row.nearest_repo else "-"
+        lines.append(
+            f"| {row.constant} | {_num(row.low)}-{high} | {_num(row.current)}"
+            f" | {row.true_reaching} | {where} | {row.true_vetoed} | {row.lost_out_of_sample}"
+            f" | {row.false_vetoed} |"
+        )
+    return "\n".join(lines)
+
+
 def _num(value: float | None, digits: int = 3) -> str:
     if value is None:
         return "-"
@@ -637,7 +490,10 @@ def main(
                 pickle.dump((reads, mismatches), file)
     rows = rule_rows(reads)
     held = leave_one_out(reads)
+    bands = band_rows(reads)
     print(format_report(reads, rows, held, mismatches))
+    print()
+    print(format_bands(bands))
     if json_path is not None:
         report = {
             "manifest": str(manifest),
@@ -645,6 +501,7 @@ def main(
             "mismatches": mismatches,
             "rules": [asdict(row) for row in rows],
             "leave_one_out": [asdict(h) for h in held],
+            "bands": [asdict(b) for b in bands],
         }
         json_path.parent.mkdir(parents=True, exist_ok=True)
         text = json.dumps(report, indent=2, default=_plain)

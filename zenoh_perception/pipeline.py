@@ -14,8 +14,9 @@ import numpy as np
 from zenoh_perception.detect.coarse import CoarseRead, same_answer
 from zenoh_perception.detect.confirm import Confirmer
 from zenoh_perception.detect.factory import make_detector
+from zenoh_perception.detect.rules import REASONS
 from zenoh_perception.detect.types import Detection, Detector, dictionary_names
-from zenoh_perception.detect.verify import REASONS, Verifier
+from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.settings.sections import DetectorSettings, Selection
 from zenoh_perception.tags.corners import MAX_MOVE_CELLS, marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (

@@ -25,16 +25,16 @@ from tests.helpers import cli_command
 from zenoh_perception.cli import main as cli
 from zenoh_perception.settings import Settings
 from zenoh_perception_bench import dataset
-from zenoh_perception_bench.dataset import (
+from zenoh_perception_bench.dataset import evaluate, nothing_found_hint
+from zenoh_perception_bench.footage import frames
+from zenoh_perception_bench.goals import dataset_goals
+from zenoh_perception_bench.manifest import (
     DICTIONARY_PLACEHOLDER,
+    MANIFEST_MAX_BYTES,
     DatasetError,
     Item,
-    evaluate,
-    frames,
     load_manifest,
-    nothing_found_hint,
 )
-from zenoh_perception_bench.goals import dataset_goals
 from zenoh_perception_bench.plot import OPENCV_COLOUR, SERVICE_COLOUR
 from zenoh_perception_bench.runners import BEST, SHOWN, rotation
 from zenoh_perception_bench.scene import render_markers
@@ -129,6 +129,49 @@ def test_every_frame_goes_to_each_detector_in_rotating_order(
     evaluate(items, corpus / "data", Settings())
     frames = [calls[k : k + len(SHOWN)] for k in range(0, len(calls), len(SHOWN))]
     assert frames == [rotation(SHOWN, index) for index in range(6)]
+
+
+def test_each_still_gets_detectors_of_its_own_in_rotating_order(
+    corpus: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[str] = []
+    made: list[str] = []
+
+    def recorders(dictionary: str, settings: Settings, *, best: bool = False) -> dict[str, Any]:
+        made.append(dictionary)
+        return {who: _Recorder(who, calls) for who in SHOWN}
+
+    monkeypatch.setattr(dataset, "pair", recorders)
+    items = [i for i in load_manifest(corpus / "manifest.json") if i.kind == "image"]
+    evaluate(items, corpus / "data", Settings())
+    # two, unknown, five, and the negative in both of the manifest's dictionaries
+    assert made == ["DICT_4X4_50", "DICT_4X4_50", "DICT_5X5_100", "DICT_4X4_50", "DICT_5X5_100"]
+    reads = [calls[k : k + len(SHOWN)] for k in range(0, len(calls), len(SHOWN))]
+    assert reads == [rotation(SHOWN, index) for index in range(5)]
+
+
+def test_a_still_is_read_alike_whatever_came_before(tmp_path: Path) -> None:
+    # a 10 px marker only the second look reads; were the stills one stream, the look would
+    # be taken on its first picture only, and the marker after a picture without one missed
+    data = tmp_path / "data"
+    data.mkdir()
+    scene = np.clip(120.0 + np.random.default_rng(0).normal(0.0, 3.0, (H, W)), 0, 255)
+    cv2.imwrite(str(data / "bare.png"), scene.astype(np.uint8))
+    printed = cv2.aruco.generateImageMarker(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), 7, 60
+    )
+    printed = cv2.copyMakeBorder(printed, *(20,) * 4, cv2.BORDER_CONSTANT, value=255)
+    scene[200:217, 300:317] = cv2.resize(printed, (17, 17), interpolation=cv2.INTER_AREA)
+    cv2.imwrite(str(data / "tagged.png"), scene.astype(np.uint8))
+    bare = Item("bare", "image", "DICT_4X4_50", {})
+    tagged = Item("tagged", "image", "DICT_4X4_50", {7: 1})
+    found = []
+    for order in ([tagged, bare], [bare, tagged]):
+        report = evaluate(order, data, Settings())
+        row = next(r for r in report["items"] if r["name"] == "tagged")
+        assert row["opencv"]["found"] == 0
+        found.append(row["service"]["found"])
+    assert found == [1, 1]
 
 
 def test_a_video_is_read_up_to_max_frames(corpus: Path) -> None:
@@ -392,7 +435,7 @@ def test_a_manifest_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path)
     assert "is not a regular file" in one_line_error(bench(str(tmp_path)))
     huge = tmp_path / "huge.json"
     with huge.open("wb") as file:  # sparse: no disk used
-        file.truncate(dataset.MANIFEST_MAX_BYTES + 1)
+        file.truncate(MANIFEST_MAX_BYTES + 1)
     assert "is larger than" in one_line_error(bench(str(huge)))
     assert "cannot read manifest" in one_line_error(bench(str(tmp_path / "none.json")))
 

@@ -10,7 +10,8 @@ import pytest
 
 from tests.bench.conftest import BenchRun
 from zenoh_perception.settings import Settings
-from zenoh_perception_bench.dataset import evaluate, load_manifest
+from zenoh_perception_bench.dataset import evaluate
+from zenoh_perception_bench.manifest import load_manifest
 from zenoh_perception_bench.processes import E2E_DETECTORS, FLOOR
 from zenoh_perception_bench.report import (
     fmt,

@@ -7,7 +7,7 @@ import pytest
 
 from tests.bench.conftest import square
 from zenoh_perception.detect.types import Detection
-from zenoh_perception_bench.dataset import Item
+from zenoh_perception_bench.manifest import Item
 from zenoh_perception_bench.scene import CameraModel, Effects, MarkerPose, Scene, SceneGenerator
 from zenoh_perception_bench.scoring import BUCKETS, Score, Tally, rounded, score, size_bucket
 

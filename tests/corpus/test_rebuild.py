@@ -104,7 +104,7 @@ def test_files_are_rebuilt_and_every_sha256_checked(
 
 
 def test_the_committed_manifest_is_well_formed() -> None:
-    from zenoh_perception_bench.dataset import load_manifest
+    from zenoh_perception_bench.manifest import load_manifest
 
     items = load_manifest(ROOT / "corpus" / "manifest.json")
     assert len(items) >= 26

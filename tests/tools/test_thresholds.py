@@ -9,22 +9,19 @@ from typing import Any
 import numpy as np
 import pytest
 
+from tools.proposals import CURRENT, RULES, Proposal, Read, truth, vetoes
 from tools.thresholds import (
-    CURRENT,
-    RULES,
-    Proposal,
-    Read,
+    band_rows,
     fit,
     fitted,
+    format_bands,
     leave_one_out,
     nearest_true,
     replay,
     rule_rows,
-    truth,
-    vetoes,
 )
+from zenoh_perception.detect.rules import GRID_RATIO_MAX, Measures
 from zenoh_perception.detect.types import Detection
-from zenoh_perception.detect.verify import GRID_RATIO_MAX, Measures
 
 RULE = {rule.field: rule for rule in RULES}
 #: A printed marker's numbers: no rule near its threshold, the margin rule not applied.
@@ -199,3 +196,32 @@ def test_truth_is_the_label_or_unknown_beside_an_unread_marker() -> None:
     assert truth(1, _Labels({1: 1})) is True
     assert truth(2, _Labels({1: 1})) is False
     assert truth(2, _Labels({1: 1}, unknown_markers=1)) is None
+
+
+def test_each_rule_is_studied_per_band_of_pixels_a_cell_and_fitted_leaving_a_repository_out() -> (
+    None
+):
+    # grid ratios of true tags: 2.0 at 2.2 px a cell (repository a), 1.6 at 2.3 (b) and 1.2 at
+    # 8 px a cell (a); a false id at 2.1 px a cell the grid rule vetoes
+    reads = [
+        _read(
+            "a",
+            _proposal(1, True, shortest_side_px=2.2 * 6, grid_ratio=2.0),
+            _proposal(1, True, grid_ratio=1.2, shortest_side_px=48.0),
+        ),
+        _read("b", _proposal(1, True, shortest_side_px=2.3 * 6, grid_ratio=1.6)),
+        _read("b", _proposal(2, False, shortest_side_px=2.1 * 6, grid_ratio=3.0)),
+    ]
+    rows = {(r.constant, r.low): r for r in band_rows(reads)}
+    small = rows["GRID_RATIO_MAX", 2.0]
+    assert (small.true_reaching, small.nearest_true, small.nearest_repo) == (2, 2.0, "a")
+    assert (small.true_vetoed, small.false_vetoed) == (0, 1)
+    # fitted without a, the band's bound is 1.6 x 2.5 / 2.0 = 2.0: a's tag at 2.0 stays
+    assert small.lost_out_of_sample == 0
+    large = rows["GRID_RATIO_MAX", 6.0]
+    assert (large.true_reaching, large.nearest_true, large.false_vetoed) == (1, 1.2, 0)
+    # the thresholds that are themselves a size are not studied per size
+    assert not any(r.constant == "MIN_PX_PER_CELL" for r in rows.values())
+    assert "| GRID_RATIO_MAX | 2-2.5 | 2.5 | 2 | 2 (a) | 0 | 0 | 1 |" in format_bands(
+        list(rows.values())
+    )

@@ -48,16 +48,16 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.opencv import aruco_detector, read_markers
-from zenoh_perception.detect.regions import same_marker
-from zenoh_perception.detect.types import Detection, Due
-from zenoh_perception.detect.verify import (
+from zenoh_perception.detect.cells import (
     Reading,
     decision_margin,
     dictionary_codes,
     quad_sides,
-    read_detection,
 )
+from zenoh_perception.detect.opencv import aruco_detector, read_markers
+from zenoh_perception.detect.regions import same_marker
+from zenoh_perception.detect.types import Detection, Due
+from zenoh_perception.detect.verify import read_detection
 from zenoh_perception.tags.geometry import mean_side
 
 Quad = npt.NDArray[np.float32]
@@ -81,7 +81,7 @@ LOW_RES_WINDOWS: Final = (9, 17, 8)
 #: has its tag without waiting for the look.
 SMALL_SIDE_PX: Final = 32.0
 #: The least quiet-zone reading (the ring around the marker against its white cells,
-#: :attr:`~zenoh_perception.detect.verify.Reading.quiet`) of a marker the look adds. The
+#: :attr:`~zenoh_perception.detect.cells.Reading.quiet`) of a marker the look adds. The
 #: markers it added on the real corpus read 0.87 and up, on generated frames 0.77 and up; the
 #: generated look-alikes it read and the veto kept, 0.35-0.85 (8 of 10 under 0.7). The veto's
 #: own bound, for every marker, is 0.35.
