@@ -9,15 +9,26 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from tests.helpers import pipeline_of
+from zenoh_perception import pipeline as pipeline_module
 from zenoh_perception.detect.coarse import same_answer
 from zenoh_perception.detect.opencv import OpenCvDetector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.detect.verify import Verifier
-from zenoh_perception.pipeline import Pipeline, TagFinder, intrinsics_from_settings, observe
+from zenoh_perception.pipeline import (
+    Pipeline,
+    TagFinder,
+    intrinsics_from_settings,
+    observe,
+    rank_floor,
+    ranked,
+)
 from zenoh_perception.settings import Settings
-from zenoh_perception.tags.geometry import closeness_from_area
+from zenoh_perception.tags.corners import MAX_MOVE_CELLS
+from zenoh_perception.tags.geometry import closeness_from_area, mean_side
 from zenoh_perception.tags.pose import Intrinsics, estimate_pose
 from zenoh_perception.tags.selection import (
     NO_TAG,
@@ -25,6 +36,7 @@ from zenoh_perception.tags.selection import (
     Policy,
     TagObservation,
     selected_message,
+    selection_key,
 )
 from zenoh_perception.wire.frames import ENCODINGS, Frame, RawFrameMeta, decode_raw_frame
 from zenoh_perception_bench.poses import project, tag_rotation
@@ -241,6 +253,70 @@ def test_begin_judges_only_the_selected_tag_and_finish_the_others(
     assert sorted(judged) == [3, 7]
     assert sorted(t.tag_id for t in analysis.tags) == [3, 7]
     assert analysis.selected == pending.selected
+
+
+def test_only_the_tags_the_selection_needs_are_refined_before_the_tag(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    refined: list[int] = []
+    refine = pipeline_module.refined
+
+    def counted(gray: npt.NDArray[np.uint8], detection: Detection) -> Detection:
+        refined.append(detection.tag_id)
+        return refine(gray, detection)
+
+    monkeypatch.setattr(pipeline_module, "refined", counted)
+    # the closest is clearly larger than the others: no other can rank before it refined
+    tags = [(7, _square(40, 40, 200)), (3, _square(300, 220, 40)), (5, _square(450, 60, 60))]
+    pending = pipeline_of(Settings()).begin(_frame(tags))
+    assert pending.selected.tag_id == 7
+    assert refined == [7]
+    analysis = pending.finish()
+    assert sorted(refined) == [3, 5, 7]  # every kept tag, after the tag
+    assert analysis.selected == analysis.tags[[t.tag_id for t in analysis.tags].index(7)].message()
+
+
+def test_ranked_is_sorted_order_asking_only_for_the_keys_that_may_come_next() -> None:
+    keys = {0: (1, 0.5), 1: (1, 0.2), 2: (1, 0.9), 3: (1, 0.2)}
+    floors = {0: (1.0, 0.45), 1: (1.0, 0.1), 2: (1.0, 0.8), 3: (1.0, 0.15)}
+    asked: list[int] = []
+
+    def key(index: int) -> tuple[float, ...]:
+        asked.append(index)
+        return keys[index]
+
+    order = ranked(4, key, [floors[i] for i in range(4)])
+    assert next(order) == 1  # a tie with 3: the lower index, as sorted() leaves it
+    assert sorted(asked) == [1, 3]  # 0 and 2 cannot rank before 1
+    assert [*order] == [3, 0, 2] == sorted(range(4), key=keys.__getitem__)[1:]
+    assert [*ranked(4, keys.__getitem__, None)] == [1, 3, 0, 2]
+
+
+@given(
+    st.tuples(st.floats(20, 600), st.floats(20, 400)),
+    st.floats(8, 150),
+    st.floats(0.5, 2.0),
+    st.lists(st.floats(-1.0, 1.0), min_size=8, max_size=8),
+    st.sampled_from(list(Policy)),
+)
+def test_a_rank_floor_is_never_above_the_refined_tag_s_key(
+    corner: tuple[float, float], side: float, stretch: float, moves: list[float], policy: Policy
+) -> None:
+    x, y = corner
+    corners = np.array(
+        [[x, y], [x + side * stretch, y + 3], [x + side, y + side], [x - 2, y + side]], np.float32
+    )
+    detection = Detection(4, corners, "DICT_4X4_50")
+    floor = rank_floor(detection, 640, 480, policy, refine=True)
+    # the refinement moves each corner at most MAX_MOVE_CELLS of a cell (6 cells across)
+    reach = MAX_MOVE_CELLS * mean_side(corners) / 6
+    shift = np.array(moves, np.float64).reshape(4, 2)
+    shift *= reach / np.maximum(np.linalg.norm(shift, axis=1, keepdims=True), reach)
+    moved = Detection(4, (corners + shift).astype(np.float32), "DICT_4X4_50")
+    selection = Settings().selection
+    key = selection_key(640, 480, policy)(observe(moved, 640, 480, selection))
+    assert floor <= key[:2]
+    assert floor <= selection_key(640, 480, policy)(observe(detection, 640, 480, selection))[:2]
 
 
 def _lookalikes_and_a_tag() -> Frame:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from typing import Final
 
@@ -17,10 +18,11 @@ from zenoh_perception.detect.rules import REASONS
 from zenoh_perception.detect.types import Detection, Detector, dictionary_names
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.settings.sections import DetectorSettings, Selection
-from zenoh_perception.tags.corners import marker_cells, refine_corners
+from zenoh_perception.tags.corners import MAX_MOVE_CELLS, marker_cells, refine_corners
 from zenoh_perception.tags.geometry import (
     closeness_from_area,
     closeness_from_distance,
+    distance_to_center,
     mean_side,
     polygon_area,
     tag_center,
@@ -114,6 +116,70 @@ def refined(gray: Gray, detection: Detection) -> Detection:
     decided them."""
     corners, _ = refine_corners(gray, detection.corners, marker_cells(detection.dictionary))
     return replace(detection, corners=corners.astype(np.float32))
+
+
+#: Floating-point slack of :func:`rank_floor`'s bounds: relative, and absolute (pixels).
+_SLACK: Final = 1e-9
+_SLACK_PX: Final = 1e-3
+
+#: The first two values of a tag's selection key (:func:`~.tags.selection.selection_key`).
+Floor = tuple[float, float]
+
+
+def rank_floor(
+    detection: Detection, width: int, height: int, policy: Policy, *, refine: bool
+) -> Floor:
+    """A lower bound of the first two values of the selection key of ``detection``'s
+    observation under an ``area`` closeness, from OpenCV's corners alone: the refinement
+    (``refine``) moves each corner at most :data:`~.tags.corners.MAX_MOVE_CELLS` of a cell,
+    which bounds how much larger the tag's area and how much nearer its centre to the
+    image's centre it can become."""
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = (
+        np.asarray(detection.corners, np.float64).reshape(4, 2).tolist()
+    )
+    reach = _SLACK_PX
+    if refine:
+        side = mean_side(detection.corners)
+        reach += MAX_MOVE_CELLS * side / marker_cells(detection.dictionary) * (1.0 + _SLACK)
+    # an area closeness ranks after a distance's (1, not 0) whatever the policy
+    if policy is Policy.CENTER:
+        centre = distance_to_center((x0 + x1 + x2 + x3) / 4, (y0 + y1 + y2 + y3) / 4, width, height)
+        return centre - reach, 1.0
+    # each corner within ``reach``: twice the area moves by at most 2 reach times the
+    # diagonals, plus 4 reach^2
+    twice = (x0 * y1 - y0 * x1) + (x1 * y2 - y1 * x2) + (x2 * y3 - y2 * x3) + (x3 * y0 - y3 * x0)
+    diagonals = math.hypot(x2 - x0, y2 - y0) + math.hypot(x3 - x1, y3 - y1)
+    largest = (abs(twice) / 2.0 + reach * diagonals + 2.0 * reach * reach) * (1.0 + _SLACK)
+    return 1.0, closeness_from_area(largest, width, height)
+
+
+def ranked(
+    count: int,
+    key: Callable[[int], tuple[float, ...]],
+    floors: list[Floor] | None,
+) -> Iterator[int]:
+    """``range(count)`` in the order ``sorted(range(count), key=key)`` gives, asking ``key``
+    only for the indices that may come next: those whose ``floors`` (lower bounds of the
+    first two values of their key; None: none known) are not above the next one's key."""
+    if floors is None:
+        yield from sorted(range(count), key=key)
+        return
+    keys: dict[int, tuple[float, ...]] = {}
+
+    def known(index: int) -> tuple[tuple[float, ...], int]:
+        if index not in keys:
+            keys[index] = key(index)
+        return keys[index], index  # ties go to the lower index, as sorted() leaves them
+
+    left = sorted(range(count), key=floors.__getitem__)
+    while left:
+        best = known(left[0])
+        for index in left[1:]:
+            if floors[index] > best[0][:2]:
+                break  # this one and every one after it rank later
+            best = min(best, known(index))
+        left.remove(best[1])
+        yield best[1]
 
 
 def intrinsics_from_settings(selection: Selection) -> Intrinsics | None:
@@ -334,14 +400,32 @@ class Pipeline(TagFinder):
             )
             return Pending(analysis.selected, mismatch, lambda: analysis)
         self.start(gray)
-        observations = [observed(d) for d in detections]
+        # without poses a tag is observed (its corners refined, its geometry) only when the
+        # selection needs it before the tag, or once it is kept, after the tag: the floors of
+        # the others' keys, from OpenCV's corners, say which may rank before it. With poses
+        # every detection is observed, in order: the stream's pose memory learns from each.
+        observations: dict[int, TagObservation] = {}
+
+        def observation(index: int) -> TagObservation:
+            if index not in observations:
+                observations[index] = observed(detections[index])
+            return observations[index]
+
         rank = selection_key(width, height, self._policy)
+        poses = self._camera[0] is not None and not mismatch
+        floors = None
+        if poses:
+            for index in range(len(detections)):
+                observation(index)
+        else:
+            refine = self.detection.refine_corners
+            floors = [rank_floor(d, width, height, self._policy, refine=refine) for d in detections]
         verdicts: dict[int, str | None] = {}
         selected = NO_TAG
-        for index in sorted(range(len(detections)), key=lambda i: rank(observations[i])):
+        for index in ranked(len(detections), lambda i: rank(observation(i)), floors):
             verdicts[index] = self.judge(gray, detections[index])
             if verdicts[index] is None:
-                selected = observations[index].message()
+                selected = observation(index).message()
                 break
         detect_s = time.perf_counter() - start - convert_s
 
@@ -350,7 +434,9 @@ class Pipeline(TagFinder):
             # the second look left until after the tag: smaller markers than the one selected
             added = self.look_again()
             detections.extend(added)
-            observations.extend(observed(d) for d in added)
+            if poses:  # observed in order, as the ones before them
+                for index in range(len(detections) - len(added), len(detections)):
+                    observation(index)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
                     verdicts[index] = self.judge(gray, detection)
@@ -360,7 +446,7 @@ class Pipeline(TagFinder):
                 [reason for reason in verdicts.values() if reason is not None],
             )
             return Analysis(
-                tags=tuple(observations[i] for i in kept),
+                tags=tuple(observation(i) for i in kept),
                 selected=selected,
                 convert_ms=convert_s * 1e3,
                 detect_ms=(detect_s + time.perf_counter() - started) * 1e3,

@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 from zenoh_perception.settings import Settings
-from zenoh_perception_bench.e2e import lockstep_images, record_detections
+from zenoh_perception_bench.e2e import LOCKSTEP_DEADLINE_MS, lockstep_images, record_detections
 from zenoh_perception_bench.footage import Image, data_folder, frames
 from zenoh_perception_bench.goals import LABELS_WRONG, dataset_goals
 from zenoh_perception_bench.manifest import (
@@ -232,7 +232,9 @@ def _end_to_end(
         f"e2e {item.name}",
         dictionary=item.dictionary,
         shm=shm,
-        flags=flags,
+        # the lockstep waits for every frame's answer: a busy machine's default deadline would
+        # abandon frames that are merely slow, as in the generated benches
+        flags=("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS), *flags),
     )
     out: dict[str, Any] = {"camera": run.camera}
     bare = np.asarray(run.bare_ms, dtype=np.float64)

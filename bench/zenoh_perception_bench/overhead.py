@@ -6,7 +6,10 @@ which the record waits for), each frame goes in lockstep,
 the order rotating per frame, to OpenCV's default bare (in the bench's process), and through
 Zenoh to the transport floor and to ``zenoh-perception run`` (OpenCV's detector), once from a
 shared-memory camera and once as plain bytes (:class:`~zenoh_perception_bench.processes.Camera`).
-Timed: put -> ``tag`` and put -> record (the record follows the tag). The overhead is a path's
+Timed: put -> ``tag`` and put -> record (the record follows the tag); the service runs with the
+lockstep's frame deadline (:data:`~zenoh_perception_bench.e2e.LOCKSTEP_DEADLINE_MS`: a busy
+machine's default 400 ms of wall time abandons frames that are merely slow, which the lockstep
+would wait for in vain; the guard stays on). The overhead is a path's
 median minus bare OpenCV's median on the same frames; "own" is the service minus the floor
 and OpenCV, to ``tag`` and to the record.
 
@@ -41,6 +44,7 @@ import zenoh
 
 from zenoh_perception.resolutions import RESOLUTIONS
 from zenoh_perception_bench._loopback import loopback_config, loopback_endpoint
+from zenoh_perception_bench.e2e import LOCKSTEP_DEADLINE_MS
 from zenoh_perception_bench.processes import (
     E2E_DETECTORS,
     FLOOR,
@@ -262,7 +266,8 @@ def main(args: argparse.Namespace) -> int:
     frames[LOOKALIKES] = frames_at("HD720", count, seed + len(frames), lookalikes=True)
     progress = Progress(count * len(frames))
     flags = ("-s", str(args.settings)) if args.settings is not None else ()
-    rows = overhead_rows(lockstep_sizes(frames, progress, flags))
+    deadline = ("--frame-deadline-ms", str(LOCKSTEP_DEADLINE_MS))
+    rows = overhead_rows(lockstep_sizes(frames, progress, (*flags, *deadline)))
     rate = None
     if args.rate:
         seconds = 2.0 if args.quick else 8.0

@@ -3,6 +3,8 @@ markers beside a board and a ChArUco board's markers still found."""
 
 from __future__ import annotations
 
+import threading
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -106,7 +108,7 @@ def test_the_keeper_arms_after_an_expensive_read_and_disarms_after_plain_frames(
     assert keeper.prepare(plain) is plain
     keeper.record(0.005, W * H)
     assert not keeper.armed
-    # a slow read without grids (a busy machine): one look on the next frame, no more
+    # a costly read without grids: one look on the next frame, no more
     keeper.record(0.5, W * H)
     assert keeper.armed
     assert keeper.prepare(plain) is plain
@@ -129,6 +131,23 @@ def test_the_keeper_arms_after_an_expensive_read_and_disarms_after_plain_frames(
         keeper.prepare(plain)
         keeper.record(0.005, W * H)
     assert not keeper.armed
+
+
+def test_a_read_stretched_by_a_busy_machine_does_not_arm_the_keeper(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a read that waits (its thread descheduled on a loaded machine) costs wall time, not CPU:
+    # only what the read itself costs arms the keeper, so the same frames are painted at any load
+    detector = OpenCvDetector("DICT_4X4_50")
+    read = detector._detect
+
+    def waiting_read(image: npt.NDArray[np.uint8], offset: tuple[int, int]) -> list[object]:
+        threading.Event().wait(0.1)  # far past the budget of a VGA frame (15 ms), idle
+        return read(image, offset)  # type: ignore[return-value]
+
+    monkeypatch.setattr(detector, "_detect", waiting_read)
+    detector.detect(np.full((480, 640), 128, np.uint8))
+    assert not detector.grids.armed
 
 
 def test_a_wary_keeper_looks_on_its_first_read_only_unless_grids_are_there() -> None:

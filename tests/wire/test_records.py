@@ -297,6 +297,20 @@ def test_tag_is_rosbags_serialisation_for_all_ids_and_floats(
     assert _same_message(TagCodec().decode(encoded), msg)
 
 
+@given(tag_id=INT32, x=st.floats(-3e38, 3e38), y=st.floats(-3e38, 3e38), closeness=st.floats())
+def test_tag_rounds_python_floats_to_float32_as_rosbags_does(
+    tag_id: int, x: float, y: float, closeness: float
+) -> None:
+    msg = TagMessage(tag_id, x, y, closeness)
+    try:
+        expected = _rosbags_tag_cdr(msg)
+    except OverflowError:
+        with pytest.raises(OverflowError):
+            TagCodec().encode(msg)
+        return
+    assert bytes(TagCodec().encode(msg)) == expected
+
+
 @given(tag_id=INT32, x=FLOAT32, y=FLOAT32, closeness=FLOAT32)
 def test_ros_package_changes_the_type_name_not_the_bytes(
     tag_id: int, x: float, y: float, closeness: float

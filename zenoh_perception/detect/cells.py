@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.rules import QUIET_MIN
+from zenoh_perception.tags.corners import median
 
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
@@ -567,8 +568,5 @@ def stroke_excess(reading: Reading) -> float:
     excess = np.concatenate([above[all_dark], below[all_white]])
     light = reading.cells[white]
     dark = reading.cells[marker & ~white]
-    if light.size and dark.size:
-        contrast = float(np.median(light)) - float(np.median(dark))
-    else:
-        contrast = reading.contrast
+    contrast = median(light) - median(dark) if light.size and dark.size else reading.contrast
     return float(excess.max()) / max(contrast, 1.0) if excess.size else 0.0

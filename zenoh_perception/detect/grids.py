@@ -22,6 +22,11 @@ How a grid is told (on the frame at half size, in 16 px cells there):
 :class:`GridKeeper` runs this only while it pays: on the frame after a read that took long
 for the frame's size, and for a few reads after the last grid found (a plain frame amid
 boards, a board out of view for a moment); plain frames otherwise cost one clock reading.
+A read that took long counts only where it offered OpenCV many candidate quads (a board's
+squares give hundreds): a busy machine, which stretches every read's wall time, does not arm
+it on frames that hold a few. (The reading thread's CPU time was tried instead: reading that
+clock is a system call, at which the thread, just back from OpenCV's read, yields to OpenCV's
+threads still spinning for work, 0.4-0.65 ms a frame on a busy machine.)
 """
 
 from __future__ import annotations
@@ -60,9 +65,14 @@ _HOLE_MARGIN = 0.2
 _NET_SQUARES = 30
 #: The part of a 3x3 neighbourhood large shapes may cover.
 _MAX_LARGE_COVER = 0.02
-#: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper.
+#: A whole-frame read costing more than this many nanoseconds a pixel arms the keeper, when it
+#: offered OpenCV at least :data:`_COSTLY_CANDIDATES` candidate quads.
 _EXPENSIVE_NS_PER_PIXEL = 40.0
 _EXPENSIVE_FLOOR_S = 0.015
+#: The fewest candidates (markers and rejected quads) of a read that arms the keeper: the
+#: HD720 boards of ``bench`` offer 236-2,172, generated frames with look-alikes at most 9, the
+#: real corpus's frames at most 125 (a 12-megapixel photo) but for a wood texture's 664.
+_COSTLY_CANDIDATES = 100
 #: Reads the keeper stays armed for after the last one that found a grid: a board seen on
 #: and off (a plain frame between board frames, a robot turning) must not cost a whole
 #: unguarded read each time it comes back (hundreds of ms); a look for grids costs a few.
@@ -294,9 +304,9 @@ class GridKeeper:
     """Whether to look for grids before a whole-frame read, the frame to read, and which of
     the markers read there to keep.
 
-    Armed for the read after one that cost more than about 40 ns a pixel (15 ms at least),
-    and for ``_HOLD_READS`` reads after the last frame with a grid; then a quick read
-    disarms it.
+    Armed for the read after one that cost more than about 40 ns a pixel (15 ms at least) and
+    offered OpenCV :data:`_COSTLY_CANDIDATES` candidates or more, and for ``_HOLD_READS`` reads
+    after the last frame with a grid; then a quick read disarms it.
 
     ``armed``: look for grids from the first read (a detector that replaces one whose read
     stalled: the frames that stalled it are likely to come again).
@@ -329,13 +339,14 @@ class GridKeeper:
         """Whether a marker read on the prepared frame is reported (not on painted pixels)."""
         return self._mask is None or not on_painted(corners, self._mask)
 
-    def record(self, seconds: float, pixels: int) -> None:
-        """After the read of a frame of ``pixels`` that took ``seconds``."""
+    def record(self, seconds: float, pixels: int, candidates: int = _COSTLY_CANDIDATES) -> None:
+        """After the read of a frame of ``pixels`` that took ``seconds`` and offered OpenCV
+        ``candidates`` quads (markers and rejected candidates)."""
         budget = max(_EXPENSIVE_FLOOR_S, _EXPENSIVE_NS_PER_PIXEL * 1e-9 * pixels)
         if self._mask is not None:
             self._hold = _HOLD_READS  # grids in view: they may well come back
-        elif seconds > budget:
-            # a look on the next frame; a slow read without grids (a busy machine) costs one
+        elif seconds > budget and candidates >= _COSTLY_CANDIDATES:
+            # a look on the next frame; a slow read without grids costs one
             self._hold = max(self._hold, 1)
         elif self._hold > 0:
             self._hold -= 1

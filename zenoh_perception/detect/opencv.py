@@ -139,7 +139,9 @@ class OpenCvDetector(Detector):
         # OpenCV's read alone: the finder's own time must not keep it armed
         start = perf_counter()
         found = self._detect(image, (0, 0))
-        self.grids.record(perf_counter() - start, gray.shape[0] * gray.shape[1])
+        seconds = perf_counter() - start
+        candidates = len(found) + len(self._rejected)
+        self.grids.record(seconds, gray.shape[0] * gray.shape[1], candidates)
         found = [d for d in found if self.grids.keep(d.corners)]
         self._later = None
         look = self.second_look

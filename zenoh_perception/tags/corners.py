@@ -217,3 +217,19 @@ def _fit_pass(
         share = ((x - px) * dy - (y - py) * dx) / cross
         corners.append([px + share * pdx, py + share * pdy])
     return corners
+
+
+def median(values: npt.NDArray[np.generic]) -> float:
+    """``float(np.median(values))``, to the bit, without ``np.median``'s overhead (its
+    dispatch and mean cost ten times the partition on a hundred values)."""
+    flat = values.reshape(-1)
+    if flat.dtype.kind != "f":
+        flat = flat.astype(np.float64)  # np.median averages whole numbers in float64
+    half = flat.size // 2
+    if flat.size % 2:
+        part = np.partition(flat, (half, -1))
+        middle = part[half]
+    else:
+        part = np.partition(flat, (half - 1, half, -1))
+        middle = (part[half - 1] + part[half]) / 2  # in the array's own precision, as np.mean
+    return math.nan if np.isnan(part[-1]) else float(middle)
