@@ -150,6 +150,36 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
     assert analysis.selected.tag_id == 7  # a distance ranks before an area
 
 
+@pytest.mark.parametrize("metric", ["area", "distance"])
+def test_poses_follow_the_tag_unless_the_selection_ranks_by_them(
+    metric: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    settings = Settings.from_flat(
+        metric=metric,
+        tag_size_m=0.2,
+        camera_fx=500.0,
+        camera_fy=500.0,
+        camera_cx=319.5,
+        camera_cy=239.5,
+    )
+    expected = pipeline_of(settings).process(_frame(TWO_TAGS))
+    solved: list[int] = []
+
+    def counted(*args: object, **kwargs: object) -> object:
+        solved.append(1)
+        return estimate_pose(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline_module, "estimate_pose", counted)
+    pending = pipeline_of(settings).begin(_frame(TWO_TAGS))
+    # "area": the tag says nothing a pose decides, so no pose is solved before it
+    assert len(solved) == (0 if metric == "area" else 2)
+    analysis = pending.finish()
+    assert len(solved) == 2
+    assert pending.selected == expected.selected
+    assert analysis.tags == expected.tags
+    assert all(tag.distance_m is not None for tag in analysis.tags)
+
+
 def test_the_intrinsics_may_change_at_run_time() -> None:
     pipeline = pipeline_of(Settings.from_flat(tag_size_m=0.2))
     assert pipeline.intrinsics is None

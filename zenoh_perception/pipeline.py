@@ -400,25 +400,44 @@ class Pipeline(TagFinder):
             )
             return Pending(analysis.selected, mismatch, lambda: analysis)
         self.start(gray)
-        # without poses a tag is observed (its corners refined, its geometry) only when the
-        # selection needs it before the tag, or once it is kept, after the tag: the floors of
-        # the others' keys, from OpenCV's corners, say which may rank before it. With poses
-        # every detection is observed, in order: the stream's pose memory learns from each.
+        # A tag is observed (its corners refined, its geometry) only when the selection needs
+        # it before the tag, or once it is kept, after the tag: the floors of the others' keys,
+        # from OpenCV's corners, say which may rank before it. Poses: with the ``distance``
+        # metric the selection reads them, so every detection is observed with its pose before
+        # the tag; with ``area`` nothing the tag says depends on a pose, so the poses follow the
+        # tag. Either way they are taken in detection order: the stream's pose memory learns
+        # from each.
+        refine = self.detection.refine_corners
+        intrinsics = None if mismatch else self._camera[0]
+        poses_first = intrinsics is not None and self.selection.metric is Metric.DISTANCE
+        published: dict[int, Detection] = {}  # each detection's corners as published
         observations: dict[int, TagObservation] = {}
 
-        def observation(index: int) -> TagObservation:
-            if index not in observations:
-                observations[index] = observed(detections[index])
+        def observe_at(index: int, posed: bool) -> TagObservation:
+            if index not in published:
+                detection = detections[index]
+                published[index] = refined(gray, detection) if refine else detection
+            observations[index] = observe(
+                published[index],
+                width,
+                height,
+                self.selection,
+                intrinsics if posed else None,
+                poses=self._poses,
+            )
             return observations[index]
 
+        def observation(index: int) -> TagObservation:
+            if index in observations:
+                return observations[index]
+            return observe_at(index, poses_first)
+
         rank = selection_key(width, height, self._policy)
-        poses = self._camera[0] is not None and not mismatch
         floors = None
-        if poses:
+        if poses_first:
             for index in range(len(detections)):
                 observation(index)
         else:
-            refine = self.detection.refine_corners
             floors = [rank_floor(d, width, height, self._policy, refine=refine) for d in detections]
         verdicts: dict[int, str | None] = {}
         selected = NO_TAG
@@ -434,9 +453,12 @@ class Pipeline(TagFinder):
             # the second look left until after the tag: smaller markers than the one selected
             added = self.look_again()
             detections.extend(added)
-            if poses:  # observed in order, as the ones before them
+            if poses_first:  # observed in order, as the ones before them
                 for index in range(len(detections) - len(added), len(detections)):
                     observation(index)
+            elif intrinsics is not None:  # every pose now, in order
+                for index in range(len(detections)):
+                    observe_at(index, True)
             for index, detection in enumerate(detections):
                 if index not in verdicts:
                     verdicts[index] = self.judge(gray, detection)
