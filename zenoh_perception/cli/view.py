@@ -29,7 +29,7 @@ from zenoh_perception.errors import CompressedImageCdrError, PerceptionError
 from zenoh_perception.service.zenoh_args import open_zenoh
 from zenoh_perception.wire.compressed import compressed_image_data
 from zenoh_perception.wire.image_header import image_header_size
-from zenoh_perception.wire.stream_keys import STREAM, any_stream_key, output_key
+from zenoh_perception.wire.stream_keys import STREAM, every_output_key, output_key
 
 WINDOW: Final = "zenoh-perception debug image"
 _POLL_S: Final = 0.03
@@ -90,7 +90,7 @@ def view_key(template: str, stream: str | None) -> str:
 
     """
     if stream is None:
-        return any_stream_key(template)
+        return every_output_key(template)
     if STREAM not in template:
         msg = (
             f"--stream {stream!r}: the debug image key {template!r} holds no {STREAM!r}; give "

@@ -20,8 +20,8 @@ from zenoh_perception.wire.stream_keys import (
     STREAM,
     Keys,
     StreamNames,
-    any_stream_key,
     colliding_keys,
+    every_output_key,
     has_wildcard,
     key_entries,
     output_key,
@@ -130,7 +130,7 @@ def _check_outputs(outputs: Outputs, published: tuple[_Named, ...]) -> dict[str,
                 "the service publishes or declares on it"
             )
             raise SettingsError(msg)
-        expressions[name] = _key_expr(name, any_stream_key(value))
+        expressions[name] = _key_expr(name, every_output_key(value))
     return expressions
 
 

@@ -80,9 +80,9 @@ def output_key(template: str, name: str) -> str:
     return "/".join(chunk for chunk in template.replace(STREAM, name).split("/") if chunk)
 
 
-def any_stream_key(template: str) -> str:
-    """``template`` as the key expression of every stream's key: :data:`STREAM` as a whole
-    chunk is ``**`` (a name may span chunks), inside a chunk ``$*``."""
+def every_output_key(template: str) -> str:
+    """An output ``template`` as the key expression of every stream's output key:
+    :data:`STREAM` as a whole chunk is ``**`` (a name may span chunks), inside a chunk ``$*``."""
     chunks = template.split("/")
     return "/".join("**" if c == STREAM else c.replace(STREAM, "$*") for c in chunks)
 
