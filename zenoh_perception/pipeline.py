@@ -509,7 +509,8 @@ def early_or_whole(
     if coarse.due():
         if pipeline.judges_one_by_one:
             pipeline.start(gray)
-        for candidate in coarse.candidates(gray):
+        # its reads under the deadline that bounds the detector's (none where it cannot)
+        for candidate in coarse.candidates(gray, pipeline.detector.watched):
             # a marker the whole read would drop is not the tag, nor is one vetoed
             if mean_side(candidate.corners) < pipeline.detection.min_tag_side_px or (
                 pipeline.judges_one_by_one and pipeline.judge(gray, candidate) is not None
