@@ -241,6 +241,13 @@ class Stream:
         return {} if self._pipeline is None else dict(self._pipeline.vetoed)
 
     @property
+    def coarse_read(self) -> dict[str, int] | None:
+        """The coarse first read's counters (None: not read coarsely, see
+        :func:`~zenoh_perception.pipeline.coarse_read_for`)."""
+        coarse = None if self._pipeline is None else self._pipeline.coarse
+        return None if coarse is None else dict(coarse.counters)
+
+    @property
     def debug_watched(self) -> threading.Event:
         return self._outputs.debug_watched
 
@@ -525,6 +532,7 @@ class Stream:
             "idle_s": round((time.monotonic_ns() - self.last_ns) / 1e9, 3),
             **snapshot,
             "vetoed_by_reason": self.vetoed,
+            "coarse_read": self.coarse_read,
             "debug_image": {
                 "watched": self._outputs.debug_watched.is_set(),
                 "published": self._outputs.debug_images,
