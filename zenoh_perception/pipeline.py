@@ -527,7 +527,6 @@ def early_or_whole(
         coarse.remember(side, [(t.tag_id, t.area_px) for t in analysis.tags])
         if early is None:
             return analysis
-        coarse.counters["answered"] += 1
         published = early.message()
         differs = not same_answer(published, analysis.selected)
         return replace(
@@ -540,6 +539,8 @@ def early_or_whole(
     if early is None:
         whole = pipeline.begin_whole(frame, converted, start)
         return Pending(whole.selected, whole.intrinsics_mismatch, lambda: finish(whole))
+    # counted as its tag goes out, whatever becomes of the whole read that follows
+    coarse.counters["answered"] += 1
     return Pending(
         early.message(),
         mismatch,

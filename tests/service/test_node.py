@@ -598,3 +598,37 @@ def test_a_coarse_read_past_the_frame_deadline_is_abandoned_like_any_read(
             assert stream["coarse_read"] == {"reads": 1, "answered": 0, "slow": 1}
         finally:
             release.set()
+
+
+def test_a_whole_read_abandoned_after_the_coarse_read_s_tag_is_no_rejection(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the frame's tag is out: the read for its record, abandoned, loses the record only
+    stall, release = threading.Event(), threading.Event()
+    detect = OpenCvDetector.detect
+
+    def stalling(self: OpenCvDetector, gray: np.ndarray, *args: Any, **kwargs: Any) -> Any:
+        if stall.is_set():
+            release.wait(60.0)
+        return detect(self, gray, *args, **kwargs)
+
+    monkeypatch.setattr(OpenCvDetector, "detect", stalling)
+    with rig_with(COARSE, endpoint) as rig:
+        try:
+            _coarse_stream(rig)
+            stall.set()
+            rig.put_raw(SCENE, seq=2)
+            assert TagCodec().decode(rig.tags.get(timeout=20).payload).tag_id == 7
+            wait_until(
+                lambda: rig.service.status()["processing_errors"].get("whole_read") == 1,
+                timeout=20.0,
+                what="the whole read abandoned",
+            )
+            status = rig.service.status()
+            assert status["rejected_by_reason"] == {}
+            assert status["budget"]["abandoned"] == 1
+            (stream,) = status["streams"]
+            assert stream["coarse_read"] == {"reads": 1, "answered": 1, "slow": 0}
+            assert stream["processing_errors"] == {"whole_read": 1}
+        finally:
+            release.set()
