@@ -531,7 +531,8 @@ def early_or_whole(
     if coarse.due():
         if pipeline.judges_one_by_one:
             pipeline.start(gray)
-        for candidate in coarse.candidates(gray):
+        # its reads under the deadline that bounds the detector's (none where it cannot)
+        for candidate in coarse.candidates(gray, pipeline.detector.watched):
             # a marker the whole read would drop is not the tag, nor is one vetoed
             if mean_side(candidate.corners) < pipeline.detection.min_tag_side_px or (
                 pipeline.judges_one_by_one and pipeline.judge(gray, candidate) is not None
@@ -548,7 +549,6 @@ def early_or_whole(
         coarse.remember(side, [(t.tag_id, t.area_px) for t in analysis.tags])
         if early is None:
             return analysis
-        coarse.counters["answered"] += 1
         published = early.message()
         differs = not same_answer(published, analysis.selected)
         return replace(
@@ -561,6 +561,8 @@ def early_or_whole(
     if early is None:
         whole = pipeline.begin_whole(frame, converted, start)
         return Pending(whole.selected, whole.intrinsics_mismatch, lambda: finish(whole))
+    # counted as its tag goes out, whatever becomes of the whole read that follows
+    coarse.counters["answered"] += 1
     return Pending(
         early.message(),
         mismatch,

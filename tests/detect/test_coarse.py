@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -9,6 +11,7 @@ import pytest
 
 from zenoh_perception.detect import coarse as coarse_module
 from zenoh_perception.detect.coarse import GATE_SIDE_PX, CoarseRead, same_answer
+from zenoh_perception.detect.types import R
 from zenoh_perception.tags.geometry import tag_center
 from zenoh_perception.tags.selection import TagMessage
 from zenoh_perception_bench.scene import render_markers
@@ -106,3 +109,38 @@ def test_after_a_slow_read_the_stream_s_next_frames_are_read_whole(
     assert [c.tag_id for c in coarse.candidates(_gray([(7, _square(100, 100, 120))]))] == [7]
     assert coarse.counters["slow"] == 1
     assert [coarse.due() for _ in range(4)] == [False, False, False, True]
+
+
+class _AbandonedError(Exception):
+    """What a read abandoned at the frame deadline raises in its thread once it returns (the
+    service's guard raises its own)."""
+
+
+def _abandoned(read: Callable[[], R]) -> R | None:
+    read()
+    raise _AbandonedError
+
+
+def _not_taken(read: Callable[[], R]) -> R | None:
+    return None
+
+
+def test_a_read_abandoned_at_the_deadline_rests_the_coarse_read_as_a_slow_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(coarse_module, "REST_FRAMES", 3)
+    coarse = _read(120)
+    assert coarse.due()
+    with pytest.raises(_AbandonedError):
+        list(coarse.candidates(_gray([(7, _square(100, 100, 120))]), _abandoned))
+    # the next frame's due() learns of it: the thread left in the read writes nothing more
+    assert [coarse.due() for _ in range(5)] == [False, False, False, True, True]
+    assert coarse.counters == {"reads": 1, "answered": 0, "slow": 1}
+
+
+def test_no_coarse_read_where_the_deadline_cannot_bound_it() -> None:
+    # frames read in a child process: an in-process read would escape the deadline
+    coarse = _read(120)
+    assert list(coarse.candidates(_gray([(7, _square(100, 100, 120))]), _not_taken)) == []
+    assert coarse.counters == {"reads": 0, "answered": 0, "slow": 0}
+    assert coarse.due()  # nothing rests it

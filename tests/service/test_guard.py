@@ -19,6 +19,7 @@ from tools.rig import marker_frame
 from zenoh_perception.detect.factory import make_detector
 from zenoh_perception.detect.types import Detection, Detector
 from zenoh_perception.errors import FrameAbandonedError
+from zenoh_perception.service.child_detector import IsolatedDetector
 from zenoh_perception.service.guard import LOW_PRIORITY, GuardedDetector, StaleDetection
 
 #: A first pixel of this value stalls the test detector until RELEASE is set (in this process;
@@ -330,3 +331,34 @@ def test_a_stalled_look_after_the_tag_is_abandoned_as_an_answered_frame() -> Non
     finally:
         RELEASE.set()
         guarded.close()
+
+
+def test_a_read_given_to_watched_is_under_the_deadline_as_detect_s_is(
+    guard: GuardedDetector,
+) -> None:
+    # the coarse first read: in the calling thread, abandoned by check past the deadline
+    assert guard.watched(lambda: 5) == 5
+    done: list[object] = []
+
+    def stalled() -> None:
+        try:
+            done.append(guard.watched(lambda: RELEASE.wait(60.0)))
+        except BaseException as err:  # kept for the test to look at
+            done.append(err)
+
+    reader = threading.Thread(target=stalled, daemon=True)
+    reader.start()
+    wait_until(lambda: guard.check() is not None, timeout=10.0, what="the read abandoned")
+    assert not guard.abandoned_answered  # before the frame's tag: the frame is rejected
+    assert guard.in_child
+    # while frames go to the child an in-process read could not be bounded: none is taken
+    assert guard.watched(lambda: 5) is None
+    RELEASE.set()
+    reader.join(5.0)
+    assert [type(d) for d in done] == [StaleDetection]
+
+
+def test_a_detector_in_a_child_process_takes_no_read_in_the_caller_s() -> None:
+    isolated = IsolatedDetector(_opencv, 0.3)
+    assert isolated.watched(lambda: 5) is None
+    assert make_detector("opencv", "DICT_4X4_50").watched(lambda: 5) == 5  # no deadline

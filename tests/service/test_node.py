@@ -27,7 +27,8 @@ from tests.helpers import (
     wait_until,
 )
 from tools.rig import marker_frame
-from zenoh_perception.detect.opencv import OpenCvDetector
+from zenoh_perception.detect import coarse
+from zenoh_perception.detect.opencv import OpenCvDetector, read_markers
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.errors import SettingsError
@@ -538,3 +539,96 @@ def test_a_list_of_cameras_each_takes_the_camera_info_of_its_own_entry(endpoint:
         assert distances["rear"] == pytest.approx(1.0, rel=0.03)
         named = {s["name"]: s["camera_info"]["intrinsics"] for s in service.status()["streams"]}
         assert named["front"] is None and named["rear"]["fx"] == 500.0
+
+
+#: The coarse first read on, under a deadline short enough for a test.
+COARSE = Settings.from_flat(stats_interval_s=0, coarse_first_read=True, frame_deadline_ms=300)
+
+
+def _coarse_stream(rig: Rig) -> dict[str, Any]:
+    """The one stream's status, its first frame (SCENE, tag 7 at 160 px) answered: the next
+    frame is read coarsely first."""
+    rig.put_raw(SCENE, seq=1)
+    tag, record = rig.answer()
+    assert tag.tag_id == 7 and record["seq"] == 1
+    wait_until(lambda: rig.service.status()["frames"]["processed"] == 1, what="frame 1 counted")
+    streams: list[dict[str, Any]] = rig.service.status()["streams"]
+    assert len(streams) == 1
+    return streams[0]
+
+
+def test_a_coarse_read_past_the_frame_deadline_is_abandoned_like_any_read(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a periodic pattern just above the coarse read's smallest marker can take OpenCV most of
+    # a second: the frame deadline abandons that read as it does the detector's
+    release = threading.Event()
+    calls: list[tuple[int, ...]] = []
+
+    def stalling_once(*args: Any) -> Any:
+        calls.append(args[1].shape)
+        if len(calls) == 1:  # the first coarse read, frame 2's half-size one
+            release.wait(60.0)
+        return read_markers(*args)
+
+    monkeypatch.setattr(coarse, "read_markers", stalling_once)
+    with rig_with(COARSE, endpoint) as rig:
+        try:
+            stream = _coarse_stream(rig)
+            assert stream["coarse_read"] == {"reads": 0, "answered": 0, "slow": 0}
+            rig.put_raw(SCENE, seq=2)
+            wait_until(
+                lambda: rig.service.status()["budget"]["abandoned"] == 1,
+                timeout=20.0,
+                what="the coarse read abandoned at the deadline",
+            )
+            assert calls == [(HEIGHT // 2, WIDTH // 2)]
+            # the frame is rejected as any frame past the deadline, and the next answered
+            rig.put_raw(SCENE, seq=3)
+            tag, record = rig.answer()
+            assert tag.tag_id == 7 and record["seq"] == 3
+            wait_until(
+                lambda: rig.service.status()["frames"]["processed"] == 2, what="frame 3 counted"
+            )
+            status = rig.service.status()
+            assert status["rejected_by_reason"] == {"abandoned": 1}
+            assert status["frames"] == {"received": 3, "processed": 2, "dropped": 0, "rejected": 1}
+            # the abandoned read counts as slow: the stream's next frames are read whole
+            (stream,) = status["streams"]
+            assert stream["coarse_read"] == {"reads": 1, "answered": 0, "slow": 1}
+        finally:
+            release.set()
+
+
+def test_a_whole_read_abandoned_after_the_coarse_read_s_tag_is_no_rejection(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the frame's tag is out: the read for its record, abandoned, loses the record only
+    stall, release = threading.Event(), threading.Event()
+    detect = OpenCvDetector.detect
+
+    def stalling(self: OpenCvDetector, gray: np.ndarray, *args: Any, **kwargs: Any) -> Any:
+        if stall.is_set():
+            release.wait(60.0)
+        return detect(self, gray, *args, **kwargs)
+
+    monkeypatch.setattr(OpenCvDetector, "detect", stalling)
+    with rig_with(COARSE, endpoint) as rig:
+        try:
+            _coarse_stream(rig)
+            stall.set()
+            rig.put_raw(SCENE, seq=2)
+            assert TagCodec().decode(rig.tags.get(timeout=20).payload).tag_id == 7
+            wait_until(
+                lambda: rig.service.status()["processing_errors"].get("whole_read") == 1,
+                timeout=20.0,
+                what="the whole read abandoned",
+            )
+            status = rig.service.status()
+            assert status["rejected_by_reason"] == {}
+            assert status["budget"]["abandoned"] == 1
+            (stream,) = status["streams"]
+            assert stream["coarse_read"] == {"reads": 1, "answered": 1, "slow": 0}
+            assert stream["processing_errors"] == {"whole_read": 1}
+        finally:
+            release.set()

@@ -24,8 +24,10 @@ a marker it found as the frame's tag only while nothing larger can have escaped 
 The marker offered is the one OpenCV's default read finds at full resolution in a crop around
 it, with the corners the whole read gives it (the same pixels within reach of the adaptive
 thresholds); the caller refines them as it refines every marker's and lets the veto judge it
-on the full-resolution frame. After a slow read (:data:`SLOW_READ_S`), the stream's frames are
-read whole for a while.
+on the full-resolution frame. Each OpenCV read it takes runs under the frame deadline that
+bounds the detector's reads (the caller's ``watched``, :meth:`~.types.Detector.watched`): one
+past it is abandoned with its frame. After a slow read (:data:`SLOW_READ_S`), or one the
+deadline abandoned, the stream's frames are read whole for a while.
 
 On the approach sets and the corpus's videos the tag published from this read was the whole
 read's in all but a few frames of thousands (docs/benchmarks.md, "Coarse first read for the
@@ -35,15 +37,15 @@ tag"). Pure: no Zenoh, no logging.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator, Sequence
-from typing import Any, Final
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Final, Protocol
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
-from zenoh_perception.detect.types import Detection
+from zenoh_perception.detect.types import Detection, R
 from zenoh_perception.tags.geometry import mean_side, polygon_area
 from zenoh_perception.tags.selection import TagMessage
 
@@ -86,13 +88,31 @@ SAME_CENTRE_PX: Final = 0.5
 SAME_CLOSENESS: Final = 0.002
 
 #: A coarse read that took longer than this (seconds; 1-3 ms at HD720, 3-6 ms at HD1080 on
-#: a quiet machine) read a periodic pattern (a checkerboard with cells just above its floor
-#: took it 0.2-0.9 s at HD720): the stream's next :data:`REST_FRAMES` frames are read whole.
+#: a quiet machine), or that the frame deadline abandoned, read a periodic pattern (a
+#: checkerboard with cells just above its floor took it 0.2-0.9 s at HD720): the stream's
+#: next :data:`REST_FRAMES` frames are read whole.
 SLOW_READ_S: Final = 0.05
 REST_FRAMES: Final = 300
 
 Gray = npt.NDArray[np.uint8]
 Quad = npt.NDArray[np.float32]
+#: An OpenCV read's markers and the quads it rejected (:func:`read_markers`).
+Markers = tuple[list[Detection], Any]
+#: What OpenCV may raise on a frame it cannot read.
+_READ_ERRORS: Final = (cv2.error, ValueError)
+
+
+class Watch(Protocol):
+    """Runs one read under the frame deadline (a detector's
+    :meth:`~zenoh_perception.detect.types.Detector.watched`): its result, or None where the
+    read is not taken. A read past the deadline does not return to the caller."""
+
+    def __call__(self, read: Callable[[], R], /) -> R | None: ...
+
+
+def unwatched(read: Callable[[], R]) -> R | None:
+    """``read()``, without a deadline."""
+    return read()
 
 
 class CoarseRead:
@@ -111,13 +131,20 @@ class CoarseRead:
         self._crop_detector = aruco_detector(self._dictionaries, self._crop_params)
         self._previous_side = 0.0  # the previous frame's closest tag, mean side (pixels)
         self._previous: dict[int, float] = {}  # the previous frame's tags: id -> area
-        #: frames read coarsely, those whose tag came from that read, and slow reads
+        #: frames read coarsely, those whose tag came from that read, and slow reads (over
+        #: :data:`SLOW_READ_S`, or abandoned at the frame deadline)
         self.counters: dict[str, int] = {"reads": 0, "answered": 0, "slow": 0}
         self._rest = 0  # frames still read whole after a slow coarse read
+        # a read has started and not come back: if so when the next frame asks, the deadline
+        # abandoned it (its thread never writes here again)
+        self._in_flight = False
 
     def due(self) -> bool:
         """Whether the next frame is read coarsely first (counts the frame's rest, after a
         slow read)."""
+        if self._in_flight:  # the last read was abandoned at the frame deadline
+            self._in_flight = False
+            self._slow()
         if self._rest > 0:
             self._rest -= 1
             return False
@@ -131,23 +158,20 @@ class CoarseRead:
         for tag_id, area in tags:
             self._previous[tag_id] = max(area, self._previous.get(tag_id, 0.0))
 
-    def candidates(self, gray: Gray) -> Iterator[Detection]:
+    def candidates(self, gray: Gray, watched: Watch = unwatched) -> Iterator[Detection]:
         """The markers of ``gray`` that may be its tag, largest first (none: read it whole),
         each as OpenCV's default reads it at full resolution. Only when :meth:`due`; each
-        read at full resolution as it is asked for."""
-        self.counters["reads"] += 1
+        read at full resolution as it is asked for. Every OpenCV read runs under ``watched``
+        (one it does not take ends the candidates)."""
         floor = max(FLOOR_PX, FLOOR_FRACTION * self._previous_side)
-        small = np.asarray(cv2.pyrDown(gray), np.uint8)
-        # no marker under the floor: its perimeter as a fraction of the reduced image's side
-        _set_min_perimeter(self._detector, self._params, 2.0 * floor / max(small.shape[:2]))
-        started = time.perf_counter()
-        found, rejected = read_markers(self._detector, small, self._dictionaries)
-        if time.perf_counter() - started > SLOW_READ_S:
+        read = self._watch(watched, lambda: self._half_size_read(gray, floor))
+        if read is None:
+            return
+        (found, rejected), seconds = read
+        if seconds > SLOW_READ_S:
             # a periodic pattern (a checkerboard, a tiled floor) with cells just above the
-            # floor: no watchdog bounds this read, so the stream's next frames are read whole,
-            # under the frame deadline
-            self._rest = REST_FRAMES
-            self.counters["slow"] += 1
+            # floor: the stream's next frames are read whole
+            self._slow()
         found.sort(key=lambda d: polygon_area(d.corners), reverse=True)
         # a tag of the frame before it did not read may be there still, and have grown
         ids = {d.tag_id for d in found}
@@ -171,34 +195,67 @@ class CoarseRead:
             # resolution as the whole read does (a marker there may be read, and be larger)
             while unread and area < AREA_MARGIN * polygon_area(unread[0]):
                 looked += 1
-                if looked > MAX_UNREAD or any(
-                    polygon_area(m.corners) * AREA_MARGIN > 4.0 * area
-                    for m in self._crop_read(gray, unread.pop(0))
+                if looked > MAX_UNREAD:
+                    return
+                markers = self._crop_read(gray, unread.pop(0), watched)
+                if markers is None or any(
+                    polygon_area(m.corners) * AREA_MARGIN > 4.0 * area for m in markers
                 ):
                     return
-            full = self._full_resolution(gray, detection)
+            full = self._full_resolution(gray, detection, watched)
             if full is None:
                 return
             yield full
 
-    def _full_resolution(self, gray: Gray, detection: Detection) -> Detection | None:
+    def _watch(self, watched: Watch, read: Callable[[], R]) -> R | None:
+        """``read`` under ``watched``; one that does not come back (abandoned at the frame
+        deadline) is counted by the next :meth:`due`."""
+        self._in_flight = True
+        try:
+            result = watched(read)
+        except _READ_ERRORS:  # OpenCV failed on the frame: the read came back
+            self._in_flight = False
+            raise
+        self._in_flight = False
+        return result
+
+    def _slow(self) -> None:
+        """A slow read: the stream's next :data:`REST_FRAMES` frames are read whole."""
+        self._rest = REST_FRAMES
+        self.counters["slow"] += 1
+
+    def _half_size_read(self, gray: Gray, floor: float) -> tuple[Markers, float]:
+        """OpenCV's read of ``gray``'s first pyramid level for markers of at least ``floor``
+        (pixels of the frame): what :func:`read_markers` gives, and the read's seconds."""
+        self.counters["reads"] += 1
+        small = np.asarray(cv2.pyrDown(gray), np.uint8)
+        # no marker under the floor: its perimeter as a fraction of the reduced image's side
+        _set_min_perimeter(self._detector, self._params, 2.0 * floor / max(small.shape[:2]))
+        started = time.perf_counter()
+        read = read_markers(self._detector, small, self._dictionaries)
+        return read, time.perf_counter() - started
+
+    def _full_resolution(
+        self, gray: Gray, detection: Detection, watched: Watch
+    ) -> Detection | None:
         """The marker ``detection`` (read on the first pyramid level of ``gray``) as OpenCV's
         default reads it at full resolution (:meth:`_crop_read`): the corners the whole read
-        gives it. None where that read finds no marker of its id there."""
+        gives it. None where that read finds no marker of its id there, or is not taken."""
         corners = detection.corners * np.float32(2.0)
         side, centre = mean_side(corners), corners.mean(axis=0)
-        for marker in self._crop_read(gray, detection.corners):
+        for marker in self._crop_read(gray, detection.corners, watched) or ():
             near = float(np.linalg.norm(marker.corners.mean(axis=0) - centre)) < side / 4
             if near and marker.tag_id == detection.tag_id:
                 return marker
         return None
 
-    def _crop_read(self, gray: Gray, quad: Quad) -> list[Detection]:
+    def _crop_read(self, gray: Gray, quad: Quad, watched: Watch) -> list[Detection] | None:
         """OpenCV's default read of ``gray`` at full resolution in a crop around ``quad``
         (corners on its first pyramid level, whose pixel (x, y) is centred on the frame's
         (2x, 2y)), for markers of at least :data:`CROP_FLOOR` of its side: the adaptive
         thresholds see there what they see in the whole read, and the quiet zone around a
-        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`)."""
+        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`). Under
+        ``watched``: None where the read is not taken."""
         corners = np.asarray(quad, np.float32).reshape(4, 2) * np.float32(2.0)
         side = mean_side(corners)
         margin = CROP_MARGIN_PX + CROP_MARGIN_SIDES * side
@@ -207,9 +264,13 @@ class CoarseRead:
         x1, y1 = np.ceil(corners.max(axis=0) + margin).astype(int) + 1
         crop = gray[y0 : min(y1, height), x0 : min(x1, width)]
         rate = 4.0 * CROP_FLOOR * side / max(crop.shape[:2])
-        _set_min_perimeter(self._crop_detector, self._crop_params, rate)
         offset = (int(x0), int(y0))
-        return read_markers(self._crop_detector, crop, self._dictionaries, offset)[0]
+
+        def read() -> list[Detection]:
+            _set_min_perimeter(self._crop_detector, self._crop_params, rate)
+            return read_markers(self._crop_detector, crop, self._dictionaries, offset)[0]
+
+        return self._watch(watched, read)
 
 
 def _unread(rejected: Sequence[Quad], found: Sequence[Detection]) -> list[Quad]:

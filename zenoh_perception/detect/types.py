@@ -5,12 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum, StrEnum
-from typing import Final, Protocol
+from typing import Final, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.errors import SettingsError
+
+R = TypeVar("R")
 
 #: OpenCV's predefined ArUco and AprilTag dictionaries (``cv2.aruco.DICT_*``).
 DICTIONARIES: Final = (
@@ -101,8 +103,9 @@ class Detector(Protocol):
     A detector may keep state between calls (a stream's previous frames): use one per stream.
     Besides :meth:`detect` it says what else it can do, each with a default for a detector
     that cannot (subclass this protocol to take them): a read of the frame left until after
-    its tag is out (:meth:`look_again`), and an array to convert the next frame into
-    (:meth:`gray_buffer`).
+    its tag is out (:meth:`look_again`), an array to convert the next frame into
+    (:meth:`gray_buffer`), and another read of the frame under its deadline
+    (:meth:`watched`).
     """
 
     def detect(self, gray: npt.NDArray[np.uint8]) -> list[Detection]:
@@ -119,6 +122,13 @@ class Detector(Protocol):
         """Where the next frame's grey image goes, so that it is not copied again (a child
         process's shared segment); None: any array."""
         return None
+
+    def watched(self, read: Callable[[], R]) -> R | None:
+        """``read()``, a read of the frame besides this detector's own (the coarse first read,
+        :mod:`~zenoh_perception.detect.coarse`), under whatever deadline bounds
+        :meth:`detect`; None where that deadline cannot bound it (the read is not taken).
+        Without a deadline: ``read()``."""
+        return read()
 
 
 class Due(Enum):

@@ -41,7 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import set_opencv_threads
-from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.detect.types import Detection, Detector, R
 from zenoh_perception.errors import FrameAbandonedError, ProcessingError
 
 #: How often a wait for the child looks at the stop event and the deadline, seconds.
@@ -239,6 +239,11 @@ class IsolatedDetector(Detector):
     def gray_buffer(self, height: int, width: int) -> npt.NDArray[np.uint8]:
         """A (height, width) array in the segment the child reads the next frame from."""
         return np.ndarray((height, width), np.uint8, self._segment_for(height * width).buf)
+
+    def watched(self, read: Callable[[], R]) -> R | None:
+        """None: a read in the calling process is not bounded by the child's deadline, so it
+        is not taken."""
+        return None
 
     def _segment_for(self, size: int) -> shared_memory.SharedMemory:
         """The shared segment, replaced by one at least twice as large when a frame needs more

@@ -18,6 +18,9 @@ IsolatedDetector`) bounds every frame but costs each one two process wake-ups. S
   frames go to the child process instead, where a stalled frame is killed at the deadline: a
   board that stays in view never leaves more than one thread stuck in OpenCV.
 
+The pipeline's other reads of a frame (the coarse first read, :meth:`GuardedDetector.watched`)
+are watched the same way; while frames go to the child they are not taken.
+
 No Zenoh, no logging.
 """
 
@@ -33,7 +36,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from zenoh_perception.detect.types import Detection, Detector
+from zenoh_perception.detect.types import Detection, Detector, R
 from zenoh_perception.errors import FrameAbandonedError
 from zenoh_perception.service.child_detector import DetectorFactory, IsolatedDetector
 
@@ -150,9 +153,15 @@ class GuardedDetector(Detector):
             return []
         return self._in_process(self._local.look_again, answered=True)
 
-    def _in_process(
-        self, read_once: Callable[..., list[Detection]], *args: object, answered: bool
-    ) -> list[Detection]:
+    def watched(self, read: Callable[[], R]) -> R | None:
+        """``read()`` in the calling thread, under the deadline as :meth:`detect`'s read is (the
+        coarse first read, before the frame's tag). None while frames go to the child: an
+        in-process read could not be bounded there (the read is not taken)."""
+        if self.in_child:
+            return None
+        return self._in_process(read, answered=False)
+
+    def _in_process(self, read_once: Callable[..., R], *args: object, answered: bool) -> R:
         """``read_once(*args)`` in the calling thread, as the read in flight that :meth:`check`
         watches (``answered``: it comes after the frame's tag was published)."""
         read = _Read(

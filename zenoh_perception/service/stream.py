@@ -153,6 +153,8 @@ class Stream:
             shared.publishers, s, name, self._publish_failed, self._debug_watched
         )
         self._seq = 0
+        # the frame in hand has had its tag published (a read abandoned now lost its record)
+        self._tag_out = False
         self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._open_lock = threading.Lock()
 
@@ -241,6 +243,13 @@ class Stream:
         return {} if self._pipeline is None else dict(self._pipeline.vetoed)
 
     @property
+    def coarse_read(self) -> dict[str, int] | None:
+        """The coarse first read's counters (None: not read coarsely, see
+        :func:`~zenoh_perception.pipeline.coarse_read_for`)."""
+        coarse = None if self._pipeline is None else self._pipeline.coarse
+        return None if coarse is None else dict(coarse.counters)
+
+    @property
     def debug_watched(self) -> threading.Event:
         return self._outputs.debug_watched
 
@@ -310,10 +319,12 @@ class Stream:
 
         """
         started = time.monotonic_ns()
+        self._tag_out = False
         frame, kind = self._decode(arrival)
         decoded = time.monotonic_ns()
         pending = self._detect(frame)
         self._outputs.put_tag(self._encode_tag(pending))
+        self._tag_out = True
         times = _Times(started, decoded, time.monotonic_ns())
         # From here on the frame is answered: later failures are counted, not rejections.
         analysis = self._finish(pending)
@@ -475,6 +486,9 @@ class Stream:
         if guard.abandoned_answered:
             # the second look after the frame's tag: answered, its record lost
             self.processing_failed(ProcessingError("second_look", err))
+        elif self._tag_out:
+            # the whole read after a tag from the coarse first read: answered, its record lost
+            self.processing_failed(ProcessingError("whole_read", err))
         else:
             self.reject(err.reason, err)
         return Stall(self._worker)
@@ -525,6 +539,7 @@ class Stream:
             "idle_s": round((time.monotonic_ns() - self.last_ns) / 1e9, 3),
             **snapshot,
             "vetoed_by_reason": self.vetoed,
+            "coarse_read": self.coarse_read,
             "debug_image": {
                 "watched": self._outputs.debug_watched.is_set(),
                 "published": self._outputs.debug_images,
