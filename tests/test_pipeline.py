@@ -150,18 +150,17 @@ def test_intrinsics_and_a_tag_size_give_a_pose_and_the_distance_metric() -> None
     assert analysis.selected.tag_id == 7  # a distance ranks before an area
 
 
+def _posed(**flat: object) -> Settings:
+    """Settings with a 20 cm tag and the intrinsics of a 640x480 camera (fx = fy = 500)."""
+    intrinsics = {"camera_fx": 500.0, "camera_fy": 500.0, "camera_cx": 319.5, "camera_cy": 239.5}
+    return Settings.from_flat(**{"tag_size_m": 0.2, **intrinsics, **flat})
+
+
 @pytest.mark.parametrize("metric", ["area", "distance"])
 def test_poses_follow_the_tag_unless_the_selection_ranks_by_them(
     metric: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    settings = Settings.from_flat(
-        metric=metric,
-        tag_size_m=0.2,
-        camera_fx=500.0,
-        camera_fy=500.0,
-        camera_cx=319.5,
-        camera_cy=239.5,
-    )
+    settings = _posed(metric=metric)
     expected = pipeline_of(settings).process(_frame(TWO_TAGS))
     solved: list[int] = []
 
@@ -231,15 +230,7 @@ def test_a_tag_s_last_clear_pose_chooses_its_ambiguous_pose_s_solution() -> None
     mirror, _ = cv2.Rodrigues(np.array(alone.other[0]))
     near = project(np.asarray(mirror, np.float64), np.array([0.1, 0.05, 1.5]), intrinsics.matrix())
     detector = _Fixed()
-    settings = Settings.from_flat(
-        verify=False,
-        tag_size_m=0.2,
-        camera_fx=500.0,
-        camera_fy=500.0,
-        camera_cx=319.5,
-        camera_cy=239.5,
-    )
-    pipeline = pipeline_of(settings, detector)
+    pipeline = pipeline_of(_posed(verify=False), detector)
 
     def tag(corners: npt.NDArray[np.float64]) -> TagObservation:
         detector.detections = [Detection(7, corners.astype(np.float32))]
