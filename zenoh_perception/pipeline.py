@@ -365,10 +365,7 @@ class Pipeline(TagFinder):
     ) -> tuple[Callable[[Detection], TagObservation], bool]:
         """How a detection of the frame ``gray`` is measured (its corners refined first, with
         ``refine_corners``), and whether the intrinsics in use were left out for its size."""
-        intrinsics, size = self._camera
-        mismatch = intrinsics is not None and size is not None and size != (width, height)
-        if mismatch:
-            intrinsics = None
+        intrinsics, mismatch = self._intrinsics_for(width, height)
         refine = self.detection.refine_corners
 
         def observed(detection: Detection) -> TagObservation:
@@ -378,18 +375,42 @@ class Pipeline(TagFinder):
 
         return observed, mismatch
 
+    def _intrinsics_for(self, width: int, height: int) -> tuple[Intrinsics | None, bool]:
+        """The intrinsics in use for a frame of ``width`` x ``height`` (None where they are
+        another size's), and whether they were left out for it."""
+        intrinsics, size = self._camera
+        mismatch = intrinsics is not None and size is not None and size != (width, height)
+        return (None if mismatch else intrinsics), mismatch
+
     def begin_whole(self, frame: Frame, converted: tuple[Gray, float], start: float) -> Pending:
         """:meth:`begin` on the whole frame, converted already (``start``: when the frame's
         detection time began, :func:`time.perf_counter`)."""
         gray, detections, convert_s = self.detect(frame, converted)
         width, height = frame.width, frame.height
-        observed, mismatch = self.observer(gray, width, height)
+        intrinsics, mismatch = self._intrinsics_for(width, height)
+        refine = self.detection.refine_corners
+        published: dict[int, Detection] = {}  # each detection's corners as published
+        observations: dict[int, TagObservation] = {}
+
+        def observe_at(index: int, posed: bool) -> TagObservation:
+            if index not in published:
+                detection = detections[index]
+                published[index] = refined(gray, detection) if refine else detection
+            observations[index] = observe(
+                published[index],
+                width,
+                height,
+                self.selection,
+                intrinsics if posed else None,
+                poses=self._poses,
+            )
+            return observations[index]
 
         if not (detections and self.judges_one_by_one):
             # no tag before every detection is judged (no verifier, or confirmation): a second
             # look left until after the tag is not taken, since the tag would wait for it
             detections = self.screen(gray, detections)
-            tags = tuple(observed(d) for d in detections)
+            tags = tuple(observe_at(i, True) for i in range(len(detections)))
             detect_s = time.perf_counter() - start - convert_s
             analysis = Analysis(
                 tags=tags,
@@ -407,25 +428,7 @@ class Pipeline(TagFinder):
         # the tag; with ``area`` nothing the tag says depends on a pose, so the poses follow the
         # tag. Either way they are taken in detection order: the stream's pose memory learns
         # from each.
-        refine = self.detection.refine_corners
-        intrinsics = None if mismatch else self._camera[0]
         poses_first = intrinsics is not None and self.selection.metric is Metric.DISTANCE
-        published: dict[int, Detection] = {}  # each detection's corners as published
-        observations: dict[int, TagObservation] = {}
-
-        def observe_at(index: int, posed: bool) -> TagObservation:
-            if index not in published:
-                detection = detections[index]
-                published[index] = refined(gray, detection) if refine else detection
-            observations[index] = observe(
-                published[index],
-                width,
-                height,
-                self.selection,
-                intrinsics if posed else None,
-                poses=self._poses,
-            )
-            return observations[index]
 
         def observation(index: int) -> TagObservation:
             if index in observations:
