@@ -57,13 +57,18 @@ def _cpu_s(pid: int) -> float:
 def _started(name: str, endpoint: str, root: Path | None, flags: Sequence[str]) -> ServiceProcess:
     """The peer (``root`` None) or a service from the checkout at ``root``."""
     saved = os.environ.get("PYTHONPATH")
+    cwd = Path.cwd()
     if root is not None:  # the child's imports: that checkout's package and bench first
         os.environ["PYTHONPATH"] = f"{root}{os.pathsep}{root / 'bench'}"
+        # ``python -m`` puts the current directory before PYTHONPATH: started from another
+        # checkout's root, the child would import that checkout's package
+        os.chdir(root)
     try:
         if root is None:
             return ServiceProcess(name, OPENCV_PEER, endpoint)
         return ServiceProcess(name, "opencv", endpoint, extra=flags)
     finally:
+        os.chdir(cwd)
         if saved is None:
             os.environ.pop("PYTHONPATH", None)
         else:
