@@ -65,6 +65,9 @@ def run_config(args: argparse.Namespace, settings: Settings) -> zenoh.Config:
 def _cmd_run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     conf = run_config(args, settings)
+    from zenoh_perception.service.opencv_pool import quiet_opencv_pool  # noqa: PLC0415
+
+    quiet_opencv_pool()  # before the service's imports load OpenCV
     from zenoh_perception.service import node  # noqa: PLC0415
 
     return node.run(conf, settings, stop_on_signals())
