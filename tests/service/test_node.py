@@ -32,7 +32,7 @@ from zenoh_perception.detect.opencv import OpenCvDetector, read_markers
 from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import Verifier
 from zenoh_perception.errors import SettingsError
-from zenoh_perception.pipeline import VETO_REASONS
+from zenoh_perception.pipeline import VETO_REASONS, Pending
 from zenoh_perception.service.node import PerceptionService, run
 from zenoh_perception.settings import Settings
 from zenoh_perception.tags.selection import TagMessage
@@ -542,6 +542,28 @@ def test_a_list_of_cameras_each_takes_the_camera_info_of_its_own_entry(endpoint:
 
 
 #: The coarse first read on, under a deadline short enough for a test.
+def test_a_frame_whose_analysis_fails_after_its_tag_is_processed_without_a_record(
+    endpoint: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the tag is out before the rest of the frame is judged: a failure there loses the record
+    # only, counted as a processing error; the frame was answered, so it is processed
+    def failing(self: Pending) -> Any:
+        msg = "simulated failure after the tag"
+        raise cv2.error(msg)
+
+    monkeypatch.setattr(Pending, "finish", failing)
+    with rig_with(Settings.from_flat(stats_interval_s=0), endpoint) as rig:
+        rig.put_raw(SCENE, seq=1)
+        assert TagCodec().decode(rig.tags.get(timeout=20).payload).tag_id == 7
+        wait_until(
+            lambda: rig.service.status()["processing_errors"] == {"detect": 1},
+            what="the failure counted",
+        )
+        status = rig.service.status()
+        assert status["frames"] == {"received": 1, "processed": 1, "dropped": 0, "rejected": 0}
+        assert status["worker_alive"] is True
+
+
 COARSE = Settings.from_flat(stats_interval_s=0, coarse_first_read=True, frame_deadline_ms=300)
 
 
@@ -627,6 +649,9 @@ def test_a_whole_read_abandoned_after_the_coarse_read_s_tag_is_no_rejection(
             status = rig.service.status()
             assert status["rejected_by_reason"] == {}
             assert status["budget"]["abandoned"] == 1
+            # answered, so processed: received = processed + dropped + rejected holds
+            frames = status["frames"]
+            assert frames["processed"] == frames["received"] >= 2
             (stream,) = status["streams"]
             assert stream["coarse_read"] == {"reads": 1, "answered": 1, "slow": 0}
             assert stream["processing_errors"] == {"whole_read": 1}

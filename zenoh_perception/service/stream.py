@@ -153,8 +153,9 @@ class Stream:
             shared.publishers, s, name, self._publish_failed, self._debug_watched
         )
         self._seq = 0
-        # the frame in hand has had its tag published (a read abandoned now lost its record)
-        self._tag_out = False
+        # the frame in hand, once its tag is published (a read abandoned now lost its record):
+        # what counting it as processed needs
+        self._answered: tuple[Arrival, _Times] | None = None
         self._tagless_since: float | None = None  # monotonic s; inf once the hint was given
         self._open_lock = threading.Lock()
 
@@ -319,16 +320,17 @@ class Stream:
 
         """
         started = time.monotonic_ns()
-        self._tag_out = False
+        self._answered = None
         frame, kind = self._decode(arrival)
         decoded = time.monotonic_ns()
         pending = self._detect(frame)
         self._outputs.put_tag(self._encode_tag(pending))
-        self._tag_out = True
         times = _Times(started, decoded, time.monotonic_ns())
+        self._answered = (arrival, times)
         # From here on the frame is answered: later failures are counted, not rejections.
         analysis = self._finish(pending)
         if analysis is None:
+            self._count_answered(arrival, times)  # its record lost, counted as the error
             return
         record = self._record(arrival, frame, kind, analysis, times)
         self._put_record(record)
@@ -447,6 +449,15 @@ class Stream:
             detect_ms=analysis.detect_ms,
         )
 
+    def _count_answered(self, arrival: Arrival, times: _Times) -> None:
+        """A frame whose tag was published and whose analysis then failed: processed (so
+        that ``received = processed + dropped + rejected`` holds), timed up to its tag."""
+        self.stats.on_processed(
+            (times.published - arrival.received_ns) / 1e6,
+            frame_ms=(times.published - times.started) / 1e6,
+            detect_ms=(times.published - times.decoded) / 1e6,
+        )
+
     def _hint_if_tagless(self, tagged: bool) -> None:
         """Once ``no_tag_hint_s`` of frames all had no tag, say what to check (once, until a
         tag is seen again)."""
@@ -483,14 +494,15 @@ class Stream:
             return None
         err = FrameAbandonedError(elapsed_ms, guard.deadline_s * 1e3)
         self.stats.on_abandoned(elapsed_ms)
-        if guard.abandoned_answered:
-            # the second look after the frame's tag: answered, its record lost
-            self.processing_failed(ProcessingError("second_look", err))
-        elif self._tag_out:
-            # the whole read after a tag from the coarse first read: answered, its record lost
-            self.processing_failed(ProcessingError("whole_read", err))
-        else:
+        answered = self._answered
+        if answered is None:
             self.reject(err.reason, err)
+            return Stall(self._worker)
+        # the frame's tag was out: answered (processed), its record lost; the read abandoned
+        # was the second look after the tag, or the whole read after a coarse read's tag
+        stage = "second_look" if guard.abandoned_answered else "whole_read"
+        self.processing_failed(ProcessingError(stage, err))
+        self._count_answered(*answered)
         return Stall(self._worker)
 
     # -- counting and logging -----------------------------------------------------------------
