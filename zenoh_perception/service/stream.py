@@ -328,9 +328,8 @@ class Stream:
         times = _Times(started, decoded, time.monotonic_ns())
         self._answered = (arrival, times)
         # From here on the frame is answered: later failures are counted, not rejections.
-        analysis = self._finish(pending)
+        analysis = self._finish(pending, arrival, times)
         if analysis is None:
-            self._count_answered(arrival, times)  # its record lost, counted as the error
             return
         record = self._record(arrival, frame, kind, analysis, times)
         self._put_record(record)
@@ -391,11 +390,13 @@ class Stream:
         except _ENCODE_ERRORS as err:
             raise ProcessingError("encode_tag", err) from err
 
-    def _finish(self, pending: Pending) -> Analysis | None:
-        """Every detection judged (None: the detector failed, counted)."""
+    def _finish(self, pending: Pending, arrival: Arrival, times: _Times) -> Analysis | None:
+        """Every detection judged (None: the detector failed; the frame, answered, counted as
+        processed and its lost record as the error)."""
         try:
             return pending.finish()
         except _DETECT_ERRORS as err:
+            self._count_answered(arrival, times)  # first: the error never shows without it
             self.processing_failed(ProcessingError("detect", err))
             return None
 
@@ -501,8 +502,8 @@ class Stream:
         # the frame's tag was out: answered (processed), its record lost; the read abandoned
         # was the second look after the tag, or the whole read after a coarse read's tag
         stage = "second_look" if guard.abandoned_answered else "whole_read"
+        self._count_answered(*answered)  # first: the error never shows without it
         self.processing_failed(ProcessingError(stage, err))
-        self._count_answered(*answered)
         return Stall(self._worker)
 
     # -- counting and logging -----------------------------------------------------------------
