@@ -1,11 +1,12 @@
 """A coarse first read of a frame for its tag, before the whole frame is read.
 
 With the area closeness the tag a rover steers by is the largest marker, and a large marker
-needs few pixels to be found: OpenCV's default read of the frame's first image-pyramid level
-(half its size, :func:`cv2.pyrDown`) finds it in about a third of the time of a whole read
-(a quarter-size level missed a 270 px tag under motion blur; OpenCV's ArUco3 mode, which
-reads at the scale its smallest marker allows, was no faster than the half-size read for the
-same smallest marker and found the tag less often: docs/benchmarks.md). :class:`CoarseRead`
+needs few pixels to be found: OpenCV's read of the frame's first image-pyramid level (half its
+size, :func:`cv2.pyrDown`) with one adaptive threshold (:data:`HALF_SIZE_WINDOW`) finds it
+in about a sixth of the time of a whole read (a quarter-size level missed a 270 px tag under
+motion blur; OpenCV's ArUco3 mode, which reads at the scale its smallest marker allows, was
+no faster than the half-size read for the same smallest marker and found the tag less often:
+docs/benchmarks.md). :class:`CoarseRead`
 takes that read only where the stream's previous frame had its closest tag at least
 :data:`GATE_SIDE_PX` across, looks only for markers of at least :data:`FLOOR_FRACTION` of that
 side (most of OpenCV's time goes to the contours just above its smallest marker), and offers
@@ -21,13 +22,14 @@ a marker it found as the frame's tag only while nothing larger can have escaped 
 - a quad this read could not read, as large, holds no marker at full resolution (read again
   there, up to :data:`MAX_UNREAD` of them).
 
-The marker offered is the one OpenCV's default read finds at full resolution in a crop around
-it, with the corners the whole read gives it (the same pixels within reach of the adaptive
-thresholds); the caller refines them as it refines every marker's and lets the veto judge it
-on the full-resolution frame. Each OpenCV read it takes runs under the frame deadline that
-bounds the detector's reads (the caller's ``watched``, :meth:`~.types.Detector.watched`): one
-past it is abandoned with its frame. After a slow read (:data:`SLOW_READ_S`), or one the
-deadline abandoned, the stream's frames are read whole for a while.
+The marker offered is the one OpenCV's default read finds at full resolution in a crop
+around it, with the corners the whole read gives it (the same pixels within reach of the
+adaptive thresholds, and the same quads around it: :meth:`CoarseRead._crop_read`); the
+caller refines them as it refines every marker's and lets the veto judge it on the
+full-resolution frame. Each OpenCV read it takes runs under the frame deadline that bounds
+the detector's reads (the caller's ``watched``, :meth:`~.types.Detector.watched`): one past
+it is abandoned with its frame. After a slow read (:data:`SLOW_READ_S`), or one the deadline
+abandoned, the stream's frames are read whole for a while.
 
 On the approach sets and the corpus's videos the tag published from this read was the whole
 read's in all but a few frames of thousands (docs/benchmarks.md, "Coarse first read for the
@@ -273,8 +275,9 @@ class CoarseRead:
         (corners on its first pyramid level, whose pixel (x, y) is centred on the frame's
         (2x, 2y)), for markers of at least :data:`CROP_FLOOR` of its side: the adaptive
         thresholds see there what they see in the whole read, and the quiet zone around a
-        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`). Under
-        ``watched``: None where the read is not taken."""
+        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`), as are the
+        quads OpenCV groups with it; none is dropped for its distance to the crop's sides
+        inside the frame. Under ``watched``: None where the read is not taken."""
         corners = np.asarray(quad, np.float32).reshape(4, 2) * np.float32(2.0)
         side = mean_side(corners)
         margin = CROP_MARGIN_PX + CROP_MARGIN_SIDES * side
@@ -284,7 +287,9 @@ class CoarseRead:
         crop = gray[y0 : min(y1, height), x0 : min(x1, width)]
         rate = 4.0 * CROP_FLOOR * side / max(crop.shape[:2])
         offset = (int(x0), int(y0))
-        # on the frame's border: that side's distance as the whole read asks it
+        # a crop on the frame's border: OpenCV's 3 px, as the whole read asks it of that side
+        # (asked of the crop's other sides too, it may drop the marker: the frame is then
+        # read whole before its tag)
         edge = int(x0 == 0 or y0 == 0 or x1 >= width or y1 >= height)
         detector, params = self._crop_detectors[edge], self._crop_params[edge]
 
