@@ -72,6 +72,16 @@ def test_a_marker_on_a_narrow_paper_comes_back_with_the_whole_read_s_corners() -
     assert np.array_equal(candidates[0].corners, corners[0].reshape(4, 2))
 
 
+def test_a_marker_the_whole_read_drops_at_the_frame_s_border_is_not_offered() -> None:
+    # 2 px from the frame's left border: under OpenCV's 3 px, which the crop keeps on that side
+    gray = _gray([(7, _square(2.0, 200.3, 140))])
+    _, ids, _ = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    ).detectMarkers(gray)
+    assert ids is None or len(ids) == 0
+    assert list(_read(140).candidates(gray)) == []
+
+
 def test_a_small_tag_is_not_offered_it_is_read_whole() -> None:
     assert list(_read(120).candidates(_gray([(7, _square(300, 200, 30))]))) == []
 
