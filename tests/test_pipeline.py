@@ -484,6 +484,37 @@ def test_a_near_tag_is_answered_from_the_coarse_read_before_the_whole_read() -> 
     assert analysis.whole_selected is None
 
 
+def test_the_record_does_not_refine_or_judge_the_coarse_read_s_tag_again(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    pipeline, _ = _coarse_pipeline()
+    refined: list[int] = []
+    judged: list[int] = []
+    refine, judge = pipeline_module.refined, Verifier.judge
+
+    def counted_refine(gray: npt.NDArray[np.uint8], detection: Detection) -> Detection:
+        refined.append(detection.tag_id)
+        return refine(gray, detection)
+
+    def counted_judge(
+        self: Verifier, gray: npt.NDArray[np.uint8], detection: Detection
+    ) -> str | None:
+        judged.append(detection.tag_id)
+        return judge(self, gray, detection)
+
+    monkeypatch.setattr(pipeline_module, "refined", counted_refine)
+    monkeypatch.setattr(Verifier, "judge", counted_judge)
+    frame = _hd([(7, _square(303.7, 151.9, 164)), (3, _square(900, 400, 40))])
+    pending = pipeline.begin(frame)
+    assert (refined, judged) == ([7], [7])  # the tag, from the coarse read
+    analysis = pending.finish()
+    # the whole read found tag 7 with the crop's corners: only tag 3 is new to it
+    assert (refined, judged) == ([7, 3], [7, 3])
+    whole = pipeline_of(Settings()).process(frame)
+    assert analysis.tags == whole.tags
+    assert analysis.selected == pending.selected
+
+
 def test_a_small_tag_is_read_whole_before_its_tag() -> None:
     pipeline, detector = _coarse_pipeline()
     assert pipeline.coarse is not None

@@ -12,7 +12,9 @@ several seeds. Prints, per source: frames, those answered from the coarse read, 
 answer differs (another id, a centre more than 0.5 px away or a closeness more than 0.002
 away: :func:`~zenoh_perception.detect.coarse.same_answer`), the largest centre and
 closeness differences where the ids agree, and the whole read's and the coarse read's
-median time per frame.
+median time per frame, and the slow coarse reads (each resting the coarse read for the
+stream's next frames, as in the service: on a loaded machine they lower the frames answered
+from it).
 """
 
 from __future__ import annotations
@@ -80,6 +82,9 @@ def compare(images: Iterable[npt.NDArray[np.uint8]], settings: Settings) -> dict
     return {
         "frames": count,
         "coarse": answered,
+        # reads slowed past SLOW_READ_S (a periodic pattern, or a loaded machine), each reading
+        # the stream's next frames whole: fewer answered from the coarse read, not others
+        "slow": counters["slow"],
         "differ": differ,
         "centre_max_px": round(centre, 3),
         "closeness_max": round(closeness, 5),

@@ -361,16 +361,13 @@ class Pipeline(TagFinder):
         return early_or_whole(self, self._coarse, frame, converted, start)
 
     def observer(
-        self, gray: Gray, width: int, height: int
+        self, width: int, height: int
     ) -> tuple[Callable[[Detection], TagObservation], bool]:
-        """How a detection of the frame ``gray`` is measured (its corners refined first, with
-        ``refine_corners``), and whether the intrinsics in use were left out for its size."""
+        """How a detection of a frame of ``width`` x ``height``, its corners as published, is
+        measured, and whether the intrinsics in use were left out for its size."""
         intrinsics, mismatch = self._intrinsics_for(width, height)
-        refine = self.detection.refine_corners
 
         def observed(detection: Detection) -> TagObservation:
-            if refine:  # what is published is measured on refined corners
-                detection = refined(gray, detection)
             return observe(detection, width, height, self.selection, intrinsics, poses=self._poses)
 
         return observed, mismatch
@@ -382,15 +379,31 @@ class Pipeline(TagFinder):
         mismatch = intrinsics is not None and size is not None and size != (width, height)
         return (None if mismatch else intrinsics), mismatch
 
-    def begin_whole(self, frame: Frame, converted: tuple[Gray, float], start: float) -> Pending:
+    def begin_whole(
+        self,
+        frame: Frame,
+        converted: tuple[Gray, float],
+        start: float,
+        known: tuple[Detection, Detection] | None = None,
+    ) -> Pending:
         """:meth:`begin` on the whole frame, converted already (``start``: when the frame's
-        detection time began, :func:`time.perf_counter`)."""
+        detection time began, :func:`time.perf_counter`). ``known``: a marker of this frame as
+        OpenCV read it and as published (refined), which the verifier kept (the coarse first
+        read's): where the whole read finds it with those corners, it is neither refined nor
+        judged again."""
         gray, detections, convert_s = self.detect(frame, converted)
         width, height = frame.width, frame.height
         intrinsics, mismatch = self._intrinsics_for(width, height)
         refine = self.detection.refine_corners
         published: dict[int, Detection] = {}  # each detection's corners as published
         observations: dict[int, TagObservation] = {}
+        verdicts: dict[int, str | None] = {}
+        if known is not None:
+            again = next((i for i, d in enumerate(detections) if same_read(d, known[0])), None)
+            if again is not None:
+                published[again] = known[1]
+                if self.judges_one_by_one:
+                    verdicts[again] = None
 
         def observe_at(index: int, posed: bool) -> TagObservation:
             if index not in published:
@@ -442,10 +455,10 @@ class Pipeline(TagFinder):
                 observation(index)
         else:
             floors = [rank_floor(d, width, height, self._policy, refine=refine) for d in detections]
-        verdicts: dict[int, str | None] = {}
         selected = NO_TAG
         for index in ranked(len(detections), lambda i: rank(observation(i)), floors):
-            verdicts[index] = self.judge(gray, detections[index])
+            if index not in verdicts:
+                verdicts[index] = self.judge(gray, detections[index])
             if verdicts[index] is None:
                 selected = observation(index).message()
                 break
@@ -501,6 +514,16 @@ class Pending:
         return self._finish()
 
 
+def same_read(a: Detection, b: Detection) -> bool:
+    """Whether OpenCV read ``a`` and ``b`` as one marker: one id of one dictionary, the same
+    corners."""
+    return (
+        a.tag_id == b.tag_id
+        and a.dictionary == b.dictionary
+        and bool(np.array_equal(a.corners, b.corners))
+    )
+
+
 def coarse_read_for(detection: DetectorSettings, selection: Selection) -> CoarseRead | None:
     """The coarse first read of a stream (:mod:`~.detect.coarse`), where the settings ask for
     it and it gives the whole read's answer: the tag is the largest marker (``closest`` by the
@@ -530,7 +553,8 @@ def early_or_whole(
     one, the frame is read whole before its tag."""
     gray = converted[0]
     early: TagObservation | None = None
-    observed, mismatch = pipeline.observer(gray, frame.width, frame.height)
+    known: tuple[Detection, Detection] | None = None  # OpenCV's marker, and as published
+    observed, mismatch = pipeline.observer(frame.width, frame.height)
     if coarse.due():
         if pipeline.judges_one_by_one:
             pipeline.start(gray)
@@ -541,7 +565,8 @@ def early_or_whole(
                 pipeline.judges_one_by_one and pipeline.judge(gray, candidate) is not None
             ):
                 continue
-            early = observed(candidate)
+            known = (candidate, refined(gray, candidate))  # published on refined corners
+            early = observed(known[1])
             break
     coarse_s = time.perf_counter() - start - converted[1]
 
@@ -569,5 +594,7 @@ def early_or_whole(
     return Pending(
         early.message(),
         mismatch,
-        lambda: finish(pipeline.begin_whole(frame, converted, time.perf_counter() - converted[1])),
+        lambda: finish(
+            pipeline.begin_whole(frame, converted, time.perf_counter() - converted[1], known)
+        ),
     )

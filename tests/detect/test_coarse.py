@@ -55,6 +55,33 @@ def test_the_largest_marker_comes_back_at_full_resolution() -> None:
     assert np.abs(candidates[0].corners - square.astype(np.float32)).max() < 1.5
 
 
+def test_a_marker_on_a_narrow_paper_comes_back_with_the_whole_read_s_corners() -> None:
+    # the crop's sides cut the ground around the paper into a quad close to the marker, which
+    # OpenCV groups with it: asked to keep 3 px from the crop's sides, it drops the group
+    gray = _gray([(7, _square(500.3, 200.6, 120))])
+    paper = np.zeros(gray.shape, bool)
+    paper[168:353, 468:653] = True
+    ground = np.where(paper, gray, 120).astype(np.uint8)
+    gray = np.asarray(cv2.GaussianBlur(ground, (0, 0), 1.0), np.uint8)
+    corners, ids, _ = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    ).detectMarkers(gray)
+    assert ids is not None and ids.ravel().tolist() == [7]
+    candidates = list(_read(120).candidates(gray))
+    assert [c.tag_id for c in candidates] == [7]
+    assert np.array_equal(candidates[0].corners, corners[0].reshape(4, 2))
+
+
+def test_a_marker_the_whole_read_drops_at_the_frame_s_border_is_not_offered() -> None:
+    # 2 px from the frame's left border: under OpenCV's 3 px, which the crop keeps on that side
+    gray = _gray([(7, _square(2.0, 200.3, 140))])
+    _, ids, _ = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    ).detectMarkers(gray)
+    assert ids is None or len(ids) == 0
+    assert list(_read(140).candidates(gray)) == []
+
+
 def test_a_small_tag_is_not_offered_it_is_read_whole() -> None:
     assert list(_read(120).candidates(_gray([(7, _square(300, 200, 30))]))) == []
 

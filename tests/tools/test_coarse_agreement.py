@@ -29,4 +29,5 @@ def test_frames_after_the_first_are_answered_from_the_coarse_read_alike() -> Non
     assert row["frames"] == 4
     assert row["coarse"] == 3  # the first frame has no tag before it
     assert row["differ"] == 0
+    assert row["slow"] == 0
     assert row["centre_max_px"] == 0.0

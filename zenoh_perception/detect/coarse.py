@@ -1,11 +1,12 @@
 """A coarse first read of a frame for its tag, before the whole frame is read.
 
 With the area closeness the tag a rover steers by is the largest marker, and a large marker
-needs few pixels to be found: OpenCV's default read of the frame's first image-pyramid level
-(half its size, :func:`cv2.pyrDown`) finds it in about a third of the time of a whole read
-(a quarter-size level missed a 270 px tag under motion blur; OpenCV's ArUco3 mode, which
-reads at the scale its smallest marker allows, was no faster than the half-size read for the
-same smallest marker and found the tag less often: docs/benchmarks.md). :class:`CoarseRead`
+needs few pixels to be found: OpenCV's read of the frame's first image-pyramid level (half its
+size, :func:`cv2.pyrDown`) with one adaptive threshold (:data:`HALF_SIZE_WINDOW`) finds it
+in about a sixth of the time of a whole read (a quarter-size level missed a 270 px tag under
+motion blur; OpenCV's ArUco3 mode, which reads at the scale its smallest marker allows, was
+no faster than the half-size read for the same smallest marker and found the tag less often:
+docs/benchmarks.md). :class:`CoarseRead`
 takes that read only where the stream's previous frame had its closest tag at least
 :data:`GATE_SIDE_PX` across, looks only for markers of at least :data:`FLOOR_FRACTION` of that
 side (most of OpenCV's time goes to the contours just above its smallest marker), and offers
@@ -21,13 +22,14 @@ a marker it found as the frame's tag only while nothing larger can have escaped 
 - a quad this read could not read, as large, holds no marker at full resolution (read again
   there, up to :data:`MAX_UNREAD` of them).
 
-The marker offered is the one OpenCV's default read finds at full resolution in a crop around
-it, with the corners the whole read gives it (the same pixels within reach of the adaptive
-thresholds); the caller refines them as it refines every marker's and lets the veto judge it
-on the full-resolution frame. Each OpenCV read it takes runs under the frame deadline that
-bounds the detector's reads (the caller's ``watched``, :meth:`~.types.Detector.watched`): one
-past it is abandoned with its frame. After a slow read (:data:`SLOW_READ_S`), or one the
-deadline abandoned, the stream's frames are read whole for a while.
+The marker offered is the one OpenCV's default read finds at full resolution in a crop
+around it, with the corners the whole read gives it (the same pixels within reach of the
+adaptive thresholds, and the same quads around it: :meth:`CoarseRead._crop_read`); the
+caller refines them as it refines every marker's and lets the veto judge it on the
+full-resolution frame. Each OpenCV read it takes runs under the frame deadline that bounds
+the detector's reads (the caller's ``watched``, :meth:`~.types.Detector.watched`): one past
+it is abandoned with its frame. After a slow read (:data:`SLOW_READ_S`), or one the deadline
+abandoned, the stream's frames are read whole for a while.
 
 On the approach sets and the corpus's videos the tag published from this read was the whole
 read's in all but a few frames of thousands (docs/benchmarks.md, "Coarse first read for the
@@ -70,11 +72,17 @@ AREA_MARGIN: Final = 1.15
 #: coarse read missed must be smaller than a marker offered by this factor (times
 #: :data:`AREA_MARGIN`).
 PREVIOUS_GROWTH: Final = 1.5
+#: The half-size read's one adaptive-threshold window (pixels of the reduced image): where the
+#: whole read's largest marker was 60 px or more, it found it as often as OpenCV's three
+#: windows (3, 13, 23) in 2.7 times less time; 23 alone missed it twice as often
+#: (docs/benchmarks.md).
+HALF_SIZE_WINDOW: Final = 13
 #: The crop a marker is read again in at full resolution: this many pixels around it (more
 #: than half OpenCV's largest threshold window, 23 px) ...
 CROP_MARGIN_PX: Final = 16.0
-#: ... and this many of its sides.
-CROP_MARGIN_SIDES: Final = 0.4
+#: ... and this many of its sides (with 0.1 one marker of 4,796 came out otherwise than in the
+#: whole read, with 0.2 none: docs/benchmarks.md).
+CROP_MARGIN_SIDES: Final = 0.2
 #: At most this many quads the coarse read could not read, as large as a marker it offers,
 #: are read again at full resolution (each costs about a tenth of a whole read at HD720);
 #: one more, and the frame is read whole.
@@ -122,13 +130,26 @@ class CoarseRead:
 
     def __init__(self, dictionaries: Sequence[str]) -> None:
         self._dictionaries = tuple(dictionaries)
-        self._params = cv2.aruco.DetectorParameters()
         # a marker 1 px from the border of the reduced frame is 2-3 px from the frame's, which
-        # the whole read may keep (its own bound is 3 px): the crop's read decides
-        self._params.minDistanceToBorder = 1
+        # the whole read may keep (its own bound is 3 px): the crop's read decides; one
+        # adaptive threshold (HALF_SIZE_WINDOW), not OpenCV's three
+        self._params = _params(
+            minDistanceToBorder=1,
+            adaptiveThreshWinSizeMin=HALF_SIZE_WINDOW,
+            adaptiveThreshWinSizeMax=HALF_SIZE_WINDOW,
+        )
         self._detector = aruco_detector(self._dictionaries, self._params)
-        self._crop_params = cv2.aruco.DetectorParameters()
-        self._crop_detector = aruco_detector(self._dictionaries, self._crop_params)
+        # A crop's read: OpenCV keeps of each group of nearby quads (a marker's contours at
+        # its three thresholds, the paper's edge around it) the one of the longest perimeter,
+        # and drops the whole group when that one is within minDistanceToBorder of the image's
+        # border. A crop's side cuts the ground around the paper into quads that the whole
+        # frame does not have, which would drop the marker's group that way: where the crop's
+        # side is inside the frame, no distance to it is asked (0); where it is the frame's
+        # own border, OpenCV's default (3 px), as in the whole read.
+        self._crop_params = (_params(minDistanceToBorder=0), cv2.aruco.DetectorParameters())
+        self._crop_detectors = tuple(
+            aruco_detector(self._dictionaries, p) for p in self._crop_params
+        )
         self._previous_side = 0.0  # the previous frame's closest tag, mean side (pixels)
         self._previous: dict[int, float] = {}  # the previous frame's tags: id -> area
         #: frames read coarsely, those whose tag came from that read, and slow reads (over
@@ -254,8 +275,9 @@ class CoarseRead:
         (corners on its first pyramid level, whose pixel (x, y) is centred on the frame's
         (2x, 2y)), for markers of at least :data:`CROP_FLOOR` of its side: the adaptive
         thresholds see there what they see in the whole read, and the quiet zone around a
-        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`). Under
-        ``watched``: None where the read is not taken."""
+        marker is in the crop (:data:`CROP_MARGIN_PX`, :data:`CROP_MARGIN_SIDES`), as are the
+        quads OpenCV groups with it; none is dropped for its distance to the crop's sides
+        inside the frame. Under ``watched``: None where the read is not taken."""
         corners = np.asarray(quad, np.float32).reshape(4, 2) * np.float32(2.0)
         side = mean_side(corners)
         margin = CROP_MARGIN_PX + CROP_MARGIN_SIDES * side
@@ -265,10 +287,15 @@ class CoarseRead:
         crop = gray[y0 : min(y1, height), x0 : min(x1, width)]
         rate = 4.0 * CROP_FLOOR * side / max(crop.shape[:2])
         offset = (int(x0), int(y0))
+        # a crop on the frame's border: OpenCV's 3 px, as the whole read asks it of that side
+        # (asked of the crop's other sides too, it may drop the marker: the frame is then
+        # read whole before its tag)
+        edge = int(x0 == 0 or y0 == 0 or x1 >= width or y1 >= height)
+        detector, params = self._crop_detectors[edge], self._crop_params[edge]
 
         def read() -> list[Detection]:
-            _set_min_perimeter(self._crop_detector, self._crop_params, rate)
-            return read_markers(self._crop_detector, crop, self._dictionaries, offset)[0]
+            _set_min_perimeter(detector, params, rate)
+            return read_markers(detector, crop, self._dictionaries, offset)[0]
 
         return self._watch(watched, read)
 
@@ -299,6 +326,14 @@ def same_answer(published: TagMessage, whole: TagMessage) -> bool:
         dx * dx + dy * dy <= SAME_CENTRE_PX**2
         and abs(published.closeness_metric - whole.closeness_metric) <= SAME_CLOSENESS
     )
+
+
+def _params(**values: float) -> Any:
+    """OpenCV's default ``DetectorParameters`` but for ``values``."""
+    params = cv2.aruco.DetectorParameters()
+    for name, value in values.items():
+        setattr(params, name, value)
+    return params
 
 
 def _set_min_perimeter(detector: Any, params: Any, rate: float) -> None:
