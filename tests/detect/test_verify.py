@@ -14,8 +14,8 @@ import pytest
 from tests.helpers import pipeline_of
 from zenoh_perception.detect.cells import (
     GRID_SIZES,
-    _cell_stats,
     _layout,
+    _window_stats,
     decision_margin,
     dictionary_codes,
     read_cells,
@@ -313,20 +313,33 @@ def test_a_vetoed_detection_is_read_again_on_the_next_frame() -> None:
 
 
 @pytest.mark.parametrize("marker_size", GRID_SIZES)
-def test_the_cells_statistics_are_exact_up_to_an_all_white_patch(marker_size: int) -> None:
+def test_the_windows_statistics_are_exact_up_to_an_all_white_patch(marker_size: int) -> None:
     # the pixels' sums are taken in float32: exact only while they stay below 2**24
     layout = _layout(marker_size)
     rng = np.random.default_rng(marker_size)
     shape = (layout.side_px, layout.side_px)
+    spread = slice(layout.spread_start, layout.seams_start)
     for patch in (np.full(shape, 255, np.uint8), rng.integers(0, 256, shape, dtype=np.uint8)):
         sums, squares = cv2.integral2(patch, sdepth=cv2.CV_64F, sqdepth=cv2.CV_64F)
-        s, q = sums.ravel()[layout.corners], squares.ravel()[layout.corners]
+        s, q = sums.ravel()[layout.windows], squares.ravel()[layout.windows]
         mean = (s[0] - s[1] - s[2] + s[3]) / layout.area
-        spread = np.sqrt(np.maximum((q[0] - q[1] - q[2] + q[3]) / layout.area - mean**2, 0.0))
-        got_mean, got_spread, got_sums = _cell_stats(patch, layout)
+        variance = (q[0] - q[1] - q[2] + q[3]) / layout.area - mean**2
+        got_mean, got_spread = _window_stats(patch, layout)
         assert np.array_equal(got_mean, mean)
-        assert np.array_equal(got_spread, spread)
-        assert np.array_equal(got_sums, sums.ravel())  # the seams' windows read these
+        assert np.array_equal(got_spread, np.sqrt(np.maximum(variance[spread], 0.0)))
+
+
+def test_the_windows_are_the_own_grid_the_marker_again_the_finer_grids_and_the_seams() -> None:
+    layout = _layout(4)  # 8 x 8 cells of 12 px: cores 3-9 px into each
+    cells = layout.ring.shape[0]
+    assert (layout.side_px, cells, layout.spread_start) == (96, 8, 64)
+    top_left = layout.windows[3]
+    assert top_left[0] == 3 * 97 + 3 and top_left[cells + 1] == 15 * 97 + 15
+    assert np.array_equal(layout.windows[:, 64 : 64 + 36], layout.windows[:, layout.marker_cells])
+    assert layout.finer_cells == (7 * 7, 8 * 8, 9 * 9)
+    assert layout.seams_start == 64 + 36 + 49 + 64 + 81
+    # 6 x 5 sides between marker cells each way and 5 x 5 corners
+    assert layout.windows.shape[1] - layout.seams_start == 2 * 6 * 5 + 5 * 5
 
 
 #: Hard light stripes across tags and the paper around them (sun through blinds).

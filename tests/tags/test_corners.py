@@ -5,11 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
-from hypothesis.extra import numpy as hnp
 
-from zenoh_perception.tags.corners import MAX_MOVE_CELLS, marker_cells, median, refine_corners
+from zenoh_perception.tags.corners import MAX_MOVE_CELLS, marker_cells, refine_corners
 from zenoh_perception_bench.poses import render, tag_rotation
 
 DICTIONARY = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
@@ -108,19 +105,3 @@ def test_cells_across_a_marker_of_each_dictionary(dictionary: str, cells: int) -
     if dictionary:  # as OpenCV draws it: bits and a one-cell border
         bits = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)).markerSize
         assert cells == bits + 2
-
-
-_SHAPES = hnp.array_shapes(min_dims=1, max_dims=3, max_side=30)
-
-
-@given(
-    hnp.arrays(
-        st.sampled_from([np.float32, np.float64]),
-        _SHAPES,
-        elements=st.floats(-1e6, 1e6, width=32) | st.just(float("nan")),
-    )
-    | hnp.arrays(np.int32, _SHAPES, elements=st.integers(-(10**6), 10**6))
-)
-def test_median_is_numpy_s_to_the_bit(values: np.ndarray) -> None:
-    expected = float(np.median(values))
-    assert median(values) == expected or (np.isnan(expected) and np.isnan(median(values)))
