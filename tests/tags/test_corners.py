@@ -124,7 +124,7 @@ def test_the_refined_corners_of_a_few_tags_are_pinned_to_the_bit(
     tag_id: int, pinned: list[list[float]]
 ) -> None:
     scenes = SceneGenerator(CameraModel.named("VGA"), seed=3, effects=Effects.realistic())
-    grey = cv2.cvtColor(scenes.random_scene(3, 2).image, cv2.COLOR_BGRA2GRAY)
+    grey = np.asarray(cv2.cvtColor(scenes.random_scene(3, 2).image, cv2.COLOR_BGRA2GRAY), np.uint8)
     corners, ids, _ = cv2.aruco.ArucoDetector(DICTIONARY).detectMarkers(grey)
     found = [c.reshape(4, 2) for c, i in zip(corners, ids.ravel(), strict=True) if i == tag_id]
     refined, ok = refine_corners(grey, found[0], CELLS)
