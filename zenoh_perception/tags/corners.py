@@ -193,8 +193,8 @@ def _fit_pass(
     # a sample whose step is weaker than half the typical one missed the edge (its reach
     # fell short of it, or something covers it): noise alone would pull the line to it
     half = 2 * count
-    middle = np.partition(sums[0], (half - 1, half))
-    usable = sums[0] > _WEAK_STEP * 0.5 * float(middle[half - 1] + middle[half])
+    ordered = np.sort(sums[0])  # a hundred values: faster than np.partition's two
+    usable = sums[0] > _WEAK_STEP * 0.5 * float(ordered[half - 1] + ordered[half])
     # per side, the sums of a line o = alpha + beta t through the samples' edges by least
     # squares, each sample weighed by its step w (a weak step's centre is the least
     # certain): sum(w), sum(w t), sum(w t^2), and sum(w o), sum(w o t) with o measured from
