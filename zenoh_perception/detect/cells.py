@@ -631,7 +631,8 @@ def stroke_excess(reading: Reading) -> float:
     # a seam's mean above the lightest of its dark cells' is its least excess over them (and
     # the same the other way for white cells): per seam the least of its four pairs
     means = reading.means[code.seam_pairs]
-    excess = float((means[0] - means[1]).reshape(-1, 4).min(axis=1).max())
+    per_seam = np.minimum.reduce((means[0] - means[1]).reshape(-1, 4), axis=1)
+    excess = float(np.maximum.reduce(per_seam))
     values = reading.cells.tolist()
     light = [values[i] for i in code.light_cells]
     dark = [values[i] for i in code.dark_cells]
