@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import itertools
 import os
 import pickle
 import subprocess
@@ -171,16 +172,65 @@ def _child(tree: Path, argv: list[str]) -> Any:
         return pickle.loads(out.read_bytes())  # noqa: S301 (our own child's file)
 
 
-def _compare(old: dict[str, Any], new: dict[str, Any]) -> int:
+def compare(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The keys whose numbers differ (or that one side lacks), printed with both sides."""
     differ = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
     tags = sum(1 for k in old if "/" in k)
     print(f"{len(old) - tags} frames, {tags} tag reads: {len(differ)} differ")
     for key in differ[:20]:
         print(f"  {key}:\n    base {old.get(key)}\n    this {new.get(key)}")
-    return len(differ)
+    return differ
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(
+    base: str = "main",
+    dataset: Path | None = None,
+    frames: int = 24,
+    max_video_frames: int = 20,
+    timing_rounds: int = 3,
+) -> int:
+    """Exit status 1 when a number differs between ``base`` and this checkout (see the module
+    documentation), after the timing rounds."""
+    here = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory() as folder:
+        tree = Path(folder)
+        archive = subprocess.run(
+            ["git", "-C", str(here), "archive", base], check=True, capture_output=True
+        ).stdout
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(tree, filter="data")
+        common = ["--frames", str(frames), "--max-video-frames", str(max_video_frames)]
+        if dataset is not None:
+            common += ["--dataset", str(dataset.resolve())]
+        differ = compare(
+            _child(tree, [*common, "--mode", "results"]),
+            _child(here, [*common, "--mode", "results"]),
+        )
+        if timing_rounds:
+            print("CPU us per tag (judged, refined), base and this checkout alternating:")
+        timed = ["--frames", str(frames), "--mode", "timing"]
+        trees = [("base", tree), ("this", here)]
+        for round_ in range(timing_rounds):
+            for label, root in trees if round_ % 2 == 0 else trees[::-1]:
+                judged, refined, tags = _child(root, timed)
+                print(f"  {label}: {judged:7.1f} {refined:7.1f}  ({tags} tags)")
+    return 1 if differ else 0
+
+
+def _child_main(args: argparse.Namespace) -> None:
+    """A child's work, with the package its PYTHONPATH names: its answer pickled to --out."""
+    answer: Any
+    if args.mode == "timing":
+        answer = timing(args.frames)
+    else:
+        cases = generated(args.frames)
+        if args.dataset is not None:
+            cases = itertools.chain(cases, corpus(args.dataset.resolve(), args.max_video_frames))
+        answer = results(cases)
+    args.out.write_bytes(pickle.dumps(answer))
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m tools.read_equivalence", description=__doc__)
     parser.add_argument("--base", default="main", help="the git revision to compare with")
     parser.add_argument("--dataset", type=Path, help="a manifest whose frames are read too")
@@ -189,46 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timing-rounds", type=int, default=3)
     parser.add_argument("--mode", choices=("results", "timing"), help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
-    if args.mode is not None:  # a child: this tree's package
-        if args.mode == "timing":
-            answer: Any = timing(args.frames)
-        else:
-            cases = generated(args.frames)
-            if args.dataset is not None:
-                cases = _chain(cases, corpus(args.dataset.resolve(), args.max_video_frames))
-            answer = results(cases)
-        args.out.write_bytes(pickle.dumps(answer))
-        return 0
-    here = Path(__file__).resolve().parents[1]
-    with tempfile.TemporaryDirectory() as folder:
-        base = Path(folder)
-        archive = subprocess.run(
-            ["git", "-C", str(here), "archive", args.base], check=True, capture_output=True
-        ).stdout
-        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-            tar.extractall(base, filter="data")
-        common = ["--frames", str(args.frames), "--max-video-frames", str(args.max_video_frames)]
-        if args.dataset is not None:
-            common += ["--dataset", str(args.dataset.resolve())]
-        differ = _compare(
-            _child(base, [*common, "--mode", "results"]),
-            _child(here, [*common, "--mode", "results"]),
-        )
-        print("CPU us per tag (judged, refined), base then this checkout, alternating:")
-        timed = ["--frames", str(args.frames), "--mode", "timing"]
-        for round_ in range(args.timing_rounds):
-            trees = [("base", base), ("this", here)]
-            for label, tree in trees if round_ % 2 == 0 else trees[::-1]:
-                judged, refined, tags = _child(tree, timed)
-                print(f"  {label}: {judged:7.1f} {refined:7.1f}  ({tags} tags)")
-    return 1 if differ else 0
-
-
-def _chain(*parts: Iterator[Case]) -> Iterator[Case]:
-    for part in parts:
-        yield from part
+    return parser.parse_args(argv)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    args = _parse(sys.argv[1:])
+    if args.mode is not None:
+        _child_main(args)
+        sys.exit(0)
+    sys.exit(main(args.base, args.dataset, args.frames, args.max_video_frames, args.timing_rounds))
