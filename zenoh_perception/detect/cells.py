@@ -620,7 +620,7 @@ def decision_margin(levels: Bits, tag_id: int, codes: Bits) -> float:
 def stroke_excess(reading: Reading) -> float:
     """How far the worst seam between marker cells of one colour (the border's and the dark
     inner cells', or the white cells') strays from those cells towards the other colour: the
-    seam's mean over its window (:class:`_Seams`) above the lightest of its dark cells' cores,
+    seam's mean over its window (:func:`_seams`) above the lightest of its dark cells' cores,
     or below the darkest of its white cells', over the contrast between the white and the dark
     cells' medians. A printed marker's cells meet edge to edge, so a seam reads as its cells;
     a symbol's strokes do not follow the cell grid: a thin shaft on the seam between two dark

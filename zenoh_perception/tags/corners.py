@@ -19,9 +19,9 @@ closer than OpenCV's unrefined corners at 10-15 px, and farther than those on 4 
 rendered tags (turned about 60 degrees, one corner 1.4-4 px off) at the sizes, blurs and
 angles of ``bench --poses``.
 
-Pure: numpy and OpenCV's ``remap`` only. Its cost is per call, not per pixel (a tag's reads
-are a few hundred): numpy does the per-sample work in a dozen calls a pass, the few numbers
-of each side's geometry are Python floats.
+Pure: numpy and OpenCV's ``remap`` and ``subtract`` only. Its cost is per call, not per pixel
+(a tag's reads are a few hundred): numpy and OpenCV do the per-sample work in ten calls a pass,
+the few numbers of each side's geometry are Python floats.
 """
 
 from __future__ import annotations
