@@ -28,7 +28,6 @@ Mask = npt.NDArray[np.bool_]
 Floats = npt.NDArray[np.float64]
 Matrix = Sequence[Sequence[float]]  # a 3 x 3 matrix, row by row
 Bits = npt.NDArray[np.float32]
-Sums = npt.NDArray[np.float32]
 
 #: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
 GRID_SIZES: Final = (4, 5, 6, 7)
