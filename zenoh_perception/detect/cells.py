@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 from typing import Final
 
 import cv2
@@ -22,14 +22,12 @@ import numpy.typing as npt
 
 from zenoh_perception.detect.opencv import aruco_dictionary
 from zenoh_perception.detect.rules import QUIET_MIN
-from zenoh_perception.tags.corners import median
 
 Gray = npt.NDArray[np.uint8]
 Mask = npt.NDArray[np.bool_]
 Floats = npt.NDArray[np.float64]
 Matrix = Sequence[Sequence[float]]  # a 3 x 3 matrix, row by row
 Bits = npt.NDArray[np.float32]
-Sums = npt.NDArray[np.float32]
 
 #: Inner cells a side of the families' grids (DICT_4X4 and tag16h5 ... DICT_7X7).
 GRID_SIZES: Final = (4, 5, 6, 7)
@@ -66,7 +64,8 @@ class Reading:
     cells: Floats  # mean of every cell of the own grid (ring, border, inner), row by row
     white: Mask  # which inner cells are white, row by row
     dark: float  # the border's median, grey levels
-    sums: Sums  # the integral of the warped patch the cells were read from, flattened
+    means: Floats  # the mean of every window read (:class:`_Layout`), ``cells`` first
+    code: _Code  # what the white cells fix of the rest
 
     def levels(self) -> npt.NDArray[np.float32]:
         """The inner cells' levels, each on the scale of the cells around it
@@ -74,7 +73,7 @@ class Reading:
         layout = _layout(self.marker_size)
         code = self.cells[layout.inner_cells]
         fallback = (code - self.dark) / max(self.contrast, 1.0)
-        levels = _local_levels(self.cells, code, self.white, fallback, layout)
+        levels = _local_levels(self.cells, code, self.code, fallback, layout)
         return np.minimum(np.maximum(levels, 0.0, out=levels), 1.0, out=levels).astype(np.float32)
 
 
@@ -91,8 +90,12 @@ def quad_sides(corners: npt.NDArray[np.float32]) -> list[float]:
 
 @dataclass(frozen=True, slots=True)
 class _Layout:
-    """The warped patch of a marker with ``marker_size`` inner cells a side, and where every
-    grid's cell cores lie in the patch's integral image (flattened)."""
+    """The warped patch of a marker with ``marker_size`` inner cells a side, and every window
+    read from it: where each lies in the patch's integral image (flattened), in one table
+    (``windows``) that one gather reads; in its order, the own grid's cell cores (row by row),
+    the marker cells' cores again and every finer grid's (whose spreads the ``grid`` rule
+    compares: from ``spread_start`` on, ``spread_windows``), then the seams between the marker
+    cells (from ``seams_start`` on, :func:`_seams`)."""
 
     side_px: int  # the patch's side: the marker, its border and one ring of cells
     target: npt.NDArray[np.float32]  # the marker's corners in the patch
@@ -104,10 +107,17 @@ class _Layout:
     inner_cells: npt.NDArray[np.intp]
     marker_cells: npt.NDArray[np.intp]
     own_cores: tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]  # own grid, one axis
-    corners: npt.NDArray[np.intp]  # (4, cores): the cores' corners, own grid then finer ones
-    area: Floats  # pixels of each core
-    finer_starts: npt.NDArray[np.intp]  # where each finer grid's cores start after the own's
+    windows: npt.NDArray[np.intp]  # (4, windows): each window's corners (_CORNER_SIGNS)
+    area: Floats  # pixels of each window
+    spread_start: int
+    spread_windows: npt.NDArray[np.intp]  # (4, cores): ``windows`` of the spreads' cores
+    spread_area: Floats
+    finer_starts: npt.NDArray[np.intp]  # where each finer grid's cores start after the marker's
     finer_cells: tuple[int, ...]  # how many cores each finer grid has
+    seams_start: int
+    # the marker cells each seam's window covers (flat indices of the own grid, a side's two
+    # cells repeated to four)
+    seam_members: npt.NDArray[np.intp]
     # each ring cell's (border cell, inner cell) pairs of :func:`_local_quiet`, grouped by ring
     # cell in ``ring_cells``' order: the ring cell, the border cell and the inner cell as flat
     # indices of the own grid, the inner cell also as its index in ``inner_cells``
@@ -148,14 +158,22 @@ def _layout(marker_size: int) -> _Layout:
     target = np.array([[lo, lo], [hi, lo], [hi, hi], [lo, hi]], np.float32)
     grids = [_cores(0, side, cells)]
     grids += [_cores(lo, hi, size + 2) for size in GRID_SIZES if size > marker_size]
+    # each window's top, bottom, left and right rows and columns
+    own = _core_windows(*grids[0])
+    marker = np.flatnonzero(~ring)
+    finer = [_core_windows(*grid) for grid in grids[1:]]
+    seam_members, seams = _seams(cells, side)
+    parts = [own, own[:, marker], *finer, seams]
+    bounds = np.concatenate(parts, axis=1)
+    top, bottom, left, right = bounds
     stride = side + 1  # the integral image's row length
-    corners: list[npt.NDArray[np.intp]] = [np.empty(0, np.intp)] * 4
-    areas: list[Floats] = []
-    for low, high in grids:
-        for k, (rows, cols) in enumerate(((high, high), (low, high), (high, low), (low, low))):
-            corners[k] = np.concatenate([corners[k], (rows[:, None] * stride + cols).ravel()])
-        areas.append(np.outer(high - low, high - low).ravel().astype(np.float64))
-    finer_cells = [low.size**2 for low, _ in grids[1:]]
+    windows = np.stack(
+        [bottom * stride + right, top * stride + right, bottom * stride + left, top * stride + left]
+    )
+    area = ((bottom - top) * (right - left)).astype(np.float64)
+    spread_start = cells * cells
+    seams_start = bounds.shape[1] - seams.shape[1]
+    finer_cells = [grid.shape[1] for grid in finer]
     pairs = _local_pairs(ring, inner)
     near_dark, near_inner = _neighbours(ring, inner)
     return _Layout(
@@ -165,16 +183,55 @@ def _layout(marker_size: int) -> _Layout:
         np.flatnonzero(ring),
         np.flatnonzero(~ring & ~inner),
         np.flatnonzero(inner),
-        np.flatnonzero(~ring),
+        marker,
         grids[0],
-        np.stack(corners),
-        np.concatenate(areas),
-        np.cumsum([0, *finer_cells], dtype=np.intp)[:-1],
+        windows,
+        area,
+        spread_start,
+        np.ascontiguousarray(windows[:, spread_start:seams_start]),
+        area[spread_start:seams_start].copy(),
+        np.cumsum([0, *finer_cells], dtype=np.intp)[:-1] + marker.size,
         tuple(finer_cells),
+        seams_start,
+        seam_members,
         *pairs,
         near_dark,
         near_inner,
     )
+
+
+def _core_windows(low: npt.NDArray[np.intp], high: npt.NDArray[np.intp]) -> npt.NDArray[np.intp]:
+    """The cores of a grid whose cells' cores span [low, high) on each axis, row by row: their
+    top, bottom, left and right rows and columns, (4, cells)."""
+    cells = low.size
+    return np.stack(
+        [np.repeat(low, cells), np.repeat(high, cells), np.tile(low, cells), np.tile(high, cells)]
+    )
+
+
+def _seams(cells: int, side: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """The seams of the own grid of ``cells`` cells a side in a patch of ``side`` pixels: a
+    window half a cell wide centred on the middle of every side two marker cells share and on
+    every corner four share; the marker cells each covers (flat indices of the own grid, a
+    side's two cells repeated to four), and the windows as :func:`_core_windows` gives them."""
+    cell = side / cells
+    members: list[list[int]] = []
+    centres: list[tuple[float, float]] = []
+    for row in range(1, cells - 1):
+        for col in range(1, cells - 1):
+            for down, right in ((0, 1), (1, 0), (1, 1)):
+                if row + down > cells - 2 or col + right > cells - 2:
+                    continue  # a ring cell: not the marker's
+                block = [
+                    (row + r) * cells + col + c for r in range(down + 1) for c in range(right + 1)
+                ]
+                members.append((block * 2)[:4])
+                centres.append(((row + 0.5 + down / 2) * cell, (col + 0.5 + right / 2) * cell))
+    centre = np.array(centres)
+    low = np.rint(centre - cell / 4).astype(np.intp)
+    high = np.rint(centre + cell / 4).astype(np.intp)
+    (top, left), (bottom, right) = low.T, high.T
+    return np.array(members, np.intp), np.stack([top, bottom, left, right])
 
 
 def _neighbours(ring: Mask, inner: Mask) -> tuple[Floats, Floats]:
@@ -231,32 +288,30 @@ def _local_pairs(
     )
 
 
-#: How each of a core's four corners in ``_Layout.corners`` counts in its sum over an integral
-#: image (bottom-right, top-right, bottom-left, top-left).
+#: How each of a window's four corners in ``_Layout.windows`` counts in its sum over an
+#: integral image (bottom-right, top-right, bottom-left, top-left).
 _CORNER_SIGNS: Final = (
     np.array([1.0, -1.0, -1.0, 1.0], np.float32),
     np.array([1.0, -1.0, -1.0, 1.0], np.float64),
 )
 
 
-def _cell_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats, Sums]:
-    """Mean and standard deviation of every cell core of every grid, in ``layout.corners``'
-    order, from the patch's integral images; and the integral of its pixels, flattened (for
-    any other window of the patch: :func:`stroke_excess`)."""
+def _window_stats(patch: Gray, layout: _Layout) -> tuple[Floats, Floats]:
+    """The mean of every window of ``layout.windows``, and the standard deviation of those
+    from ``layout.spread_start`` to ``layout.seams_start`` (the cores whose spreads the
+    ``grid`` rule compares), from the patch's integral images."""
     # Every sum here is a whole number. The pixels' (at most 255 a pixel over the patch,
-    # twice that while a core's four corners are added) stays below 2**24 on the layouts'
+    # twice that while a window's four corners are added) stays below 2**24 on the layouts'
     # patches, so float32, which OpenCV fills faster, holds it exactly; the squares' needs
     # float64. Exact sums: the tables' types change no result.
     sums, squares = cv2.integral2(patch, sdepth=cv2.CV_32F, sqdepth=cv2.CV_64F)
     signs32, signs64 = _CORNER_SIGNS
-    # each table's four corners of every core in one gather: (4, cores), then summed by sign
-    flat = np.asarray(sums, np.float32).ravel()
-    s = signs32 @ flat[layout.corners]
-    q = signs64 @ np.asarray(squares, np.float64).ravel()[layout.corners]
-    mean = s / layout.area  # in float64: the area's type
-    variance = q / layout.area
+    # each table's four corners of every window in one gather: (4, windows), summed by sign
+    means = (signs32 @ sums.ravel()[layout.windows]) / layout.area  # float64: the area's type
+    variance = (signs64 @ squares.ravel()[layout.spread_windows]) / layout.spread_area
+    mean = means[layout.spread_start : layout.seams_start]
     variance -= mean * mean
-    return mean, np.sqrt(np.maximum(variance, 0.0, out=variance), out=variance), flat
+    return means, np.sqrt(np.maximum(variance, 0.0, out=variance), out=variance)
 
 
 def _median(values: list[float]) -> float:
@@ -367,23 +422,83 @@ def _local_quiet(grid: Floats, white: Mask, inside: Mask | None, layout: _Layout
     return _median(values) if values else None
 
 
-def _local_levels(
-    grid: Floats, code: Floats, white: Mask, fallback: Floats, layout: _Layout
-) -> Floats:
-    """Each inner cell's level between the mean of the dark cells next to it (border cells and
-    inner cells not ``white``: 0) and the mean of the white inner cells within
-    :data:`LEVEL_WHITE_REACH` of it (1): the light around it, not the whole marker's; where it
-    has no such neighbours, or they differ by less than :data:`LOCAL_CONTRAST_MIN`, its level
-    in ``fallback``."""
+@dataclass(frozen=True, slots=True)
+class _Code:
+    """What a marker's white inner cells fix of its reading, built once a code (:func:`_code`):
+    which cells are of either colour, the seams between cells of one colour
+    (:func:`stroke_excess`) and how many neighbours of either colour each inner cell has
+    (:func:`_local_levels`)."""
+
+    white: Mask  # which inner cells are white, row by row
+    light_cells: tuple[int, ...]  # the white inner cells, as flat indices of the own grid
+    dark_cells: tuple[int, ...]  # the border cells and the other inner cells, the same way
+    # per seam of one colour, for each of the four marker cells it covers, the pair of windows
+    # (:class:`_Layout`) whose means' difference is how far the seam strays from that cell
+    # towards the other colour: (seam, cell) for a dark seam, (cell, seam) for a white one
+    seam_pairs: npt.NDArray[np.intp]  # (2, seams x 4)
+    is_dark: Floats  # the own grid, 1.0 but for the white inner cells
+    is_white: Floats  # the inner cells, 1.0 for the white ones
+    dark_norm: Floats  # each inner cell's dark cells next to it (at least 1)
+    white_norm: Floats  # each inner cell's white inner cells near it (at least 1)
+    counted: Mask  # which inner cells have both
+
+
+#: Codes whose :class:`_Code` is kept (a 7X7 code's takes about 16 kB).
+_CODES_KEPT: Final = 512
+
+
+@lru_cache(maxsize=_CODES_KEPT)
+def _code(marker_size: int, white_bytes: bytes) -> _Code:
+    """The :class:`_Code` of a marker of ``marker_size`` whose white inner cells are
+    ``white_bytes`` (a mask's bytes, row by row)."""
+    layout = _layout(marker_size)
+    white = np.frombuffer(white_bytes, np.bool_).copy()
+    cells = layout.ring.shape[0]
     is_white = white.astype(np.float64)
-    is_dark = np.ones(grid.size)
+    is_dark = np.ones(cells * cells)
     is_dark[layout.inner_cells] = 1.0 - is_white
     dark_count = layout.near_dark @ is_dark
     white_count = layout.near_inner @ is_white
-    low = (layout.near_dark @ (grid * is_dark)) / np.maximum(dark_count, 1.0)
-    high = (layout.near_inner @ (code * is_white)) / np.maximum(white_count, 1.0)
+    light_grid = np.zeros(cells * cells, bool)
+    light_grid[layout.inner_cells] = white
+    members = layout.seam_members
+    kind = light_grid[members]
+    dark, light = np.flatnonzero(~kind.any(axis=1)), np.flatnonzero(kind.all(axis=1))
+    seam = np.repeat(layout.seams_start + np.arange(len(members)), 4).reshape(-1, 4)
+    pairs = np.stack(
+        [
+            np.concatenate([seam[dark], members[light]]).ravel(),
+            np.concatenate([members[dark], seam[light]]).ravel(),
+        ]
+    )
+    dark_grid = np.zeros(cells * cells, bool)
+    dark_grid[layout.marker_cells] = True
+    dark_grid &= ~light_grid
+    return _Code(
+        white,
+        tuple(np.flatnonzero(light_grid).tolist()),
+        tuple(np.flatnonzero(dark_grid).tolist()),
+        pairs,
+        is_dark,
+        is_white,
+        np.maximum(dark_count, 1.0),
+        np.maximum(white_count, 1.0),
+        (dark_count > 0) & (white_count > 0),
+    )
+
+
+def _local_levels(
+    grid: Floats, code: Floats, tables: _Code, fallback: Floats, layout: _Layout
+) -> Floats:
+    """Each inner cell's level between the mean of the dark cells next to it (border cells and
+    inner cells not white: 0) and the mean of the white inner cells within
+    :data:`LEVEL_WHITE_REACH` of it (1): the light around it, not the whole marker's; where it
+    has no such neighbours, or they differ by less than :data:`LOCAL_CONTRAST_MIN`, its level
+    in ``fallback``."""
+    low = (layout.near_dark @ (grid * tables.is_dark)) / tables.dark_norm
+    high = (layout.near_inner @ (code * tables.is_white)) / tables.white_norm
     span = high - low
-    ok = (dark_count > 0) & (white_count > 0) & (span >= LOCAL_CONTRAST_MIN)
+    ok = tables.counted & (span >= LOCAL_CONTRAST_MIN)
     local = (code - low) / np.maximum(span, LOCAL_CONTRAST_MIN)
     return np.where(ok, local, fallback)
 
@@ -409,9 +524,8 @@ def read_cells(
     quad = np.asarray(corners, np.float32)
     warp = np.asarray(cv2.getPerspectiveTransform(quad, layout.target), np.float64)
     patch = np.asarray(cv2.warpPerspective(gray, warp, (layout.side_px, layout.side_px)), np.uint8)
-    means, spreads, sums = _cell_stats(patch, layout)
-    cells = layout.ring.shape[0]
-    grid = means[: cells * cells]  # the own grid's cells, row by row
+    means, spreads = _window_stats(patch, layout)
+    grid = means[: layout.spread_start]  # the own grid's cells, row by row
     # A few dozen values each: plain Python floats from here on, but for the inner cells'
     # levels; a level is (mean - dark) / scale, the same arithmetic as numpy's on arrays.
     border = grid[layout.border_cells].tolist()
@@ -434,11 +548,11 @@ def read_cells(
         local = _local_quiet(grid, white, inside, layout)
         quiet_local = quiet if local is None else local
     border_light = len([value for value in border if (value - dark) / scale > 0.5]) / len(border)
-    marker = spreads[layout.marker_cells]
-    own = float(np.add.reduce(marker)) / marker.size
-    finer = spreads[cells * cells :]
-    if finer.size:
-        totals = np.add.reduceat(finer, layout.finer_starts).tolist()
+    # the marker cells' spreads first, then the finer grids'
+    marker_count = layout.marker_cells.size
+    own = float(np.add.reduce(spreads[:marker_count])) / marker_count
+    if layout.finer_cells:
+        totals = np.add.reduceat(spreads, layout.finer_starts).tolist()
         least = min(total / count for total, count in zip(totals, layout.finer_cells, strict=True))
     else:
         least = own
@@ -454,7 +568,8 @@ def read_cells(
         grid,
         white,
         dark,
-        sums,
+        means,
+        _code(marker_size, white.tobytes()),
     )
 
 
@@ -501,72 +616,24 @@ def decision_margin(levels: Bits, tag_id: int, codes: Bits) -> float:
     return float(scores.min()) - own
 
 
-@dataclass(frozen=True, slots=True)
-class _Seams:
-    """The seams of a marker's own grid in its patch (:class:`_Layout`): a window half a cell
-    wide centred on the middle of every side two marker cells share and on every corner four
-    share; the marker cells each covers (flat indices of the own grid, a side's two cells
-    repeated to four), and the window's corners in the patch's integral image (flattened)."""
-
-    members: npt.NDArray[np.intp]  # (windows, 4)
-    corners: npt.NDArray[np.intp]  # (4, windows): bottom-right, top-right, bottom-left, top-left
-    area: Floats
-
-
-@cache
-def _seams(marker_size: int) -> _Seams:
-    layout = _layout(marker_size)
-    cells = marker_size + 4
-    cell = layout.side_px / cells
-    stride = layout.side_px + 1
-    members: list[list[int]] = []
-    centres: list[tuple[float, float]] = []
-    for row in range(1, cells - 1):
-        for col in range(1, cells - 1):
-            for down, right in ((0, 1), (1, 0), (1, 1)):
-                if row + down > cells - 2 or col + right > cells - 2:
-                    continue  # a ring cell: not the marker's
-                block = [
-                    (row + r) * cells + col + c for r in range(down + 1) for c in range(right + 1)
-                ]
-                members.append((block * 2)[:4])
-                centres.append(((row + 0.5 + down / 2) * cell, (col + 0.5 + right / 2) * cell))
-    centre = np.array(centres)
-    low = np.rint(centre - cell / 4).astype(np.intp)
-    high = np.rint(centre + cell / 4).astype(np.intp)
-    (top, left), (bottom, right) = low.T, high.T
-    corners = np.stack(
-        [bottom * stride + right, top * stride + right, bottom * stride + left, top * stride + left]
-    )
-    area = ((bottom - top) * (right - left)).astype(np.float64)
-    return _Seams(np.array(members, np.intp), corners, area)
-
-
 def stroke_excess(reading: Reading) -> float:
     """How far the worst seam between marker cells of one colour (the border's and the dark
     inner cells', or the white cells') strays from those cells towards the other colour: the
-    seam's mean over its window (:class:`_Seams`) above the lightest of its dark cells' cores,
+    seam's mean over its window (:func:`_seams`) above the lightest of its dark cells' cores,
     or below the darkest of its white cells', over the contrast between the white and the dark
     cells' medians. A printed marker's cells meet edge to edge, so a seam reads as its cells;
     a symbol's strokes do not follow the cell grid: a thin shaft on the seam between two dark
     cells, an arrow head's slant or a gap inside a white cell reads as neither."""
-    layout = _layout(reading.marker_size)
-    seams = _seams(reading.marker_size)
-    cells = layout.ring.shape[0]
-    white = np.zeros(cells * cells, bool)
-    white[layout.inner_cells] = reading.white
-    marker = np.zeros(cells * cells, bool)
-    marker[layout.marker_cells] = True
-    # whole numbers, exact in float32 (see _cell_stats)
-    seam = (_CORNER_SIGNS[0] @ reading.sums[seams.corners]) / seams.area
-    cores = reading.cells[seams.members]
-    kind = white[seams.members]
-    all_white = kind.all(axis=1)
-    all_dark = ~kind.any(axis=1)
-    above = seam - cores.max(axis=1)
-    below = cores.min(axis=1) - seam
-    excess = np.concatenate([above[all_dark], below[all_white]])
-    light = reading.cells[white]
-    dark = reading.cells[marker & ~white]
-    contrast = median(light) - median(dark) if light.size and dark.size else reading.contrast
-    return float(excess.max()) / max(contrast, 1.0) if excess.size else 0.0
+    code = reading.code
+    if not code.seam_pairs.size:
+        return 0.0
+    # a seam's mean above the lightest of its dark cells' is its least excess over them (and
+    # the same the other way for white cells): per seam the least of its four pairs
+    means = reading.means[code.seam_pairs]
+    per_seam = np.minimum.reduce((means[0] - means[1]).reshape(-1, 4), axis=1)
+    excess = float(np.maximum.reduce(per_seam))
+    values = reading.cells.tolist()
+    light = [values[i] for i in code.light_cells]
+    dark = [values[i] for i in code.dark_cells]
+    contrast = _median(light) - _median(dark) if light and dark else reading.contrast
+    return excess / max(contrast, 1.0)

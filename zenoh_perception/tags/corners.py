@@ -19,9 +19,9 @@ closer than OpenCV's unrefined corners at 10-15 px, and farther than those on 4 
 rendered tags (turned about 60 degrees, one corner 1.4-4 px off) at the sizes, blurs and
 angles of ``bench --poses``.
 
-Pure: numpy and OpenCV's ``remap`` only. Its cost is per call, not per pixel (a tag's reads
-are a few hundred): numpy does the per-sample work in a dozen calls a pass, the few numbers
-of each side's geometry are Python floats.
+Pure: numpy and OpenCV's ``remap`` and ``subtract`` only. Its cost is per call, not per pixel
+(a tag's reads are a few hundred): numpy and OpenCV do the per-sample work in ten calls a pass,
+the few numbers of each side's geometry are Python floats.
 """
 
 from __future__ import annotations
@@ -157,9 +157,11 @@ def _fit_pass(
     width = grid.points.shape[1] // count
     clear = max(reaches) + 1.0
     # per side: first sample (x, y), from it to the last (x, y), outward unit normal (x, y);
-    # the map's rows, x then y of each side, are its coefficients of (1, t, offset across)
+    # the map's rows, x of each side then y of each, are its coefficients of (1, t, offset
+    # across)
     frames = []
-    coefficients = []
+    across_x = []
+    across_y = []
     for i, reach in enumerate(reaches):
         (x0, y0), (x1, y1) = quad[i], quad[i - 3]
         sx, sy = x1 - x0, y1 - y0
@@ -172,26 +174,27 @@ def _fit_pass(
         ax, ay = (1.0 - 2.0 * margin) * sx, (1.0 - 2.0 * margin) * sy
         step = 2.0 * reach / (width - 1)
         frames.append((ox, oy, ax, ay, nx, ny, reach, step))
-        coefficients.append((ox - reach * nx, ax, step * nx))
-        coefficients.append((oy - reach * ny, ay, step * ny))
-    maps = np.array(coefficients, np.float32) @ grid.points
+        across_x.append((ox - reach * nx, ax, step * nx))
+        across_y.append((oy - reach * ny, ay, step * ny))
+    maps = np.array(across_x + across_y, np.float32) @ grid.points
     profiles = cv2.remap(
         gray,
-        maps[0::2].reshape(4 * count, width),
-        maps[1::2].reshape(4 * count, width),
+        maps[:4].reshape(4 * count, width),
+        maps[4:].reshape(4 * count, width),
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
-    ).astype(np.float32)
+    )
     # the edge at the centre of mass of the dark-to-light step outwards: per sample the
-    # step's weight (row 0) and its moment about the first read (row 1)
-    steps = profiles[:, 1:] - profiles[:, :-1]
-    np.maximum(steps, 0.0, out=steps)
+    # step's weight (row 0) and its moment about the first read (row 1); the steps' (whole
+    # grey levels, saturated at 0 by OpenCV: the dark-to-light ones) and their sums (whole
+    # numbers and halves) are exact
+    steps = cv2.subtract(profiles[:, 1:], profiles[:, :-1])
     sums = grid.moments @ steps.T
     # a sample whose step is weaker than half the typical one missed the edge (its reach
     # fell short of it, or something covers it): noise alone would pull the line to it
     half = 2 * count
-    middle = np.partition(sums[0], (half - 1, half))
-    usable = sums[0] > _WEAK_STEP * 0.5 * float(middle[half - 1] + middle[half])
+    ordered = np.sort(sums[0])  # a hundred values: faster than np.partition's two
+    usable = sums[0] > _WEAK_STEP * 0.5 * float(ordered[half - 1] + ordered[half])
     # per side, the sums of a line o = alpha + beta t through the samples' edges by least
     # squares, each sample weighed by its step w (a weak step's centre is the least
     # certain): sum(w), sum(w t), sum(w t^2), and sum(w o), sum(w o t) with o measured from
@@ -217,19 +220,3 @@ def _fit_pass(
         share = ((x - px) * dy - (y - py) * dx) / cross
         corners.append([px + share * pdx, py + share * pdy])
     return corners
-
-
-def median(values: npt.NDArray[np.generic]) -> float:
-    """``float(np.median(values))``, to the bit, without ``np.median``'s overhead (its
-    dispatch and mean cost ten times the partition on a hundred values)."""
-    flat = values.reshape(-1)
-    if flat.dtype.kind != "f":
-        flat = flat.astype(np.float64)  # np.median averages whole numbers in float64
-    half = flat.size // 2
-    if flat.size % 2:
-        part = np.partition(flat, (half, -1))
-        middle = part[half]
-    else:
-        part = np.partition(flat, (half - 1, half, -1))
-        middle = (part[half - 1] + part[half]) / 2  # in the array's own precision, as np.mean
-    return math.nan if np.isnan(part[-1]) else float(middle)
