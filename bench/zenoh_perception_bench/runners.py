@@ -162,9 +162,27 @@ def pair(dictionary: str, settings: DetectorSettings, *, best: bool = False) -> 
 
 
 def rotation(order: Sequence[T], index: int) -> list[T]:
-    """``order`` rotated for frame ``index``: each one goes first in turn."""
-    shift = index % len(order)
-    return [*order[shift:], *order[:shift]]
+    """``order`` for frame ``index``: a row of a balanced Latin square (Williams' design).
+
+    Over ``n`` frames (``2n`` when ``n`` is odd) each one goes first equally often and comes
+    right after each other one equally often. A cyclic shift would not do: each would always
+    follow the same one, and a program that leaves the cores busy after its answer (OpenCV's
+    spinning pool) would always slow the same next one.
+    """
+    n = len(order)
+    if n < 2:
+        return list(order)
+    first = [0]
+    low, high = 1, n - 1
+    while len(first) < n:
+        first.append(low)
+        low += 1
+        if len(first) < n:
+            first.append(high)
+            high -= 1
+    row = index % (n if n % 2 == 0 else 2 * n)
+    picked = [order[(k + row) % n] for k in first]
+    return picked if row < n else picked[::-1]
 
 
 def compare(

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+from collections import Counter
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -31,8 +34,22 @@ from zenoh_perception_bench.scene import CameraModel, Effects, SceneGenerator, r
 def test_rotation_puts_each_first_in_turn() -> None:
     assert rotation("abc", 0) == ["a", "b", "c"]
     assert rotation("abc", 1) == ["b", "c", "a"]
-    assert rotation("abc", 5) == ["c", "a", "b"]
     assert rotation(PAIR, 1) == [PAIR[1], PAIR[0]]
+    assert rotation("a", 3) == ["a"]
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 7, 8])
+def test_rotation_balances_who_follows_whom(n: int) -> None:
+    order = list(range(n))
+    cycle = n if n % 2 == 0 else 2 * n
+    rows = [rotation(order, index) for index in range(cycle)]
+    assert all(sorted(row) == order for row in rows)
+    firsts = Counter(row[0] for row in rows)
+    assert set(firsts.values()) == {cycle // n}
+    follows = Counter((a, b) for row in rows for a, b in itertools.pairwise(row))
+    assert len(follows) == n * (n - 1)  # every ordered pair, each as often
+    assert len(set(follows.values())) == 1
+    assert rotation(order, cycle + 1) == rows[1]
 
 
 class Recorder:
