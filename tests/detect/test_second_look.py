@@ -15,8 +15,11 @@ from zenoh_perception.detect.second_look import (
     LATER,
     MAX_CANDIDATES,
     MAX_SIDE_PX,
+    MID_LINES,
+    MID_PASS,
     NOW,
     PERIOD,
+    Pass,
     SecondLook,
 )
 from zenoh_perception.detect.types import Detection
@@ -104,7 +107,7 @@ FAR = (7, 14, 600, 300)
 
 
 def test_larger_frames_are_looked_at_also_on_every_frame_where_nothing_was_found() -> None:
-    for shape, again in ((HD720, NOW), ((MAX_SIDE_PX, 640), None)):
+    for shape, again in ((HD720, NOW), ((720, 960), NOW), ((MID_LINES, MAX_SIDE_PX), None)):
         look = SecondLook((DICTIONARY,))
         assert look.due(shape, []) == NOW  # the first frame
         assert look.due(shape, []) == again  # nothing found, as before
@@ -285,7 +288,7 @@ def test_a_low_resolution_frame_s_marker_only_its_pass_reads(
     default = OpenCvDetector(DICTIONARY).detect(frame)
     assert 7 not in _ids(default)
     assert 7 in _ids(SecondLook((DICTIONARY,)).look(frame, list(default)))
-    monkeypatch.setattr(second_look, "LOW_RES_SIDE_PX", 0)  # the one window instead
+    monkeypatch.setattr(second_look, "LOW_RES_PASS", MID_PASS)  # the one window instead
     assert 7 not in _ids(SecondLook((DICTIONARY,)).look(frame, list(default)))
 
 
@@ -304,3 +307,51 @@ def test_a_low_resolution_frame_is_looked_at_when_fewer_are_found_than_lately() 
     look.due((180, 320), markers)
     # fewer than lately, but a marker over 32 px: its tag goes out before the look
     assert look.due((180, 320), [_square(9, 40), *markers[:3]]) == LATER
+
+
+def _misprinted(tag_id: int, side_px: int) -> Gray:
+    """:func:`_marker` with one inner cell (row 2, column 3) printed the wrong way round."""
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    marker = cv2.aruco.generateImageMarker(dictionary, tag_id, 60)  # cells of 10 px
+    marker[30:40, 40:50] = 255 - marker[30:40, 40:50]
+    printed = cv2.copyMakeBorder(marker, *(20,) * 4, cv2.BORDER_CONSTANT, value=255)
+    total = round(side_px * 100 / 60)
+    return np.asarray(cv2.resize(printed, (total, total), interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def _with_misprint(shape: tuple[int, int]) -> Gray:
+    """A frame of ``shape`` with marker 7 of 16 px (2.7 px a cell), a cell misread, soft."""
+    frame = _frame(shape=shape)
+    print_ = _misprinted(7, 16)
+    frame[60 : 60 + print_.shape[0], 140 : 140 + print_.shape[1]] = print_
+    return np.asarray(cv2.GaussianBlur(frame, (0, 0), 0.8), np.uint8)
+
+
+def test_a_low_resolution_frame_s_marker_only_the_chosen_pass_reads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """320x180 with a 16 px marker that reads one cell wrong: the default read corrects no bit
+    of a 4x4 code, the passes before (one 13 px window, windows 9 and 17) neither; the
+    low-resolution pass corrects it, and the service reports it."""
+    frame = _with_misprint((180, 320))
+    default = OpenCvDetector(DICTIONARY).detect(frame)
+    assert default == []
+    assert _ids(SecondLook((DICTIONARY,)).look(frame, [])) == [7]
+    tagged = _bgra(frame)
+    assert pipeline_of(Settings()).process(tagged).selected.tag_id == 7
+    for before in (MID_PASS, Pass((9, 17, 8))):
+        monkeypatch.setattr(second_look, "LOW_RES_PASS", before)
+        assert SecondLook((DICTIONARY,)).look(frame, []) == []
+
+
+def test_frames_of_more_lines_than_a_pass_can_help_are_not_read_whole(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """960x720: on the corpus no pass read a marker the default missed on frames of over 480
+    lines, so such a frame is looked at only at the candidates OpenCV rejected (none here)."""
+    frame = _frame(SMALL, shape=(720, 960))
+    look = SecondLook((DICTIONARY,))
+    assert look.look(frame, [], rejected=()) == []
+    assert look.counters == {"looks": 1, "candidates": 0, "added": 0}
+    monkeypatch.setattr(second_look, "MID_LINES", 720)  # read whole, the 10 px marker is read
+    assert _ids(SecondLook((DICTIONARY,)).look(frame, [], rejected=())) == [7]

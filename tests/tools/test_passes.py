@@ -5,7 +5,18 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tools.passes import CELL_BINS, SETTINGS, Setting, _cell_table, read
+from tools.passes import (
+    CELL_BINS,
+    SETTINGS,
+    STATES,
+    Setting,
+    _cell_table,
+    read,
+    side_band,
+    size_class,
+    state,
+)
+from zenoh_perception.detect.types import Detection
 from zenoh_perception.detect.verify import measure
 
 DICTIONARY = "DICT_4X4_50"
@@ -41,3 +52,21 @@ def test_the_cell_table_bins_true_markers_by_pixels_a_cell() -> None:
     assert list(table) == [f">= {CELL_BINS[-2]:g}"]
     assert table[f">= {CELL_BINS[-2]:g}"]["true"] == 1
     assert table[f">= {CELL_BINS[-2]:g}"]["vetoed"] == {}
+
+
+def _square(side: float) -> Detection:
+    return Detection(1, np.asarray([[0, 0], [side, 0], [side, side], [0, side]], np.float32))
+
+
+def test_frames_are_banded_by_their_lines_and_markers_by_their_side() -> None:
+    # a portrait phone video has as many lines as the same video landscape
+    assert size_class((180, 320)) == size_class((320, 180)) == "<= 240 lines"
+    assert size_class((480, 848)) == size_class((850, 478)) == "241-480 lines"
+    assert size_class((720, 1280)) == "> 480 lines"
+    assert [side_band(s) for s in (10, 16, 30, 100)] == ["0-16", "16-24", "24-32", ">= 64"]
+
+
+def test_a_frame_s_state_is_what_the_default_read_found_there() -> None:
+    assert state([]) == STATES[0]
+    assert state([_square(60), _square(20)]) == STATES[1]
+    assert state([_square(60), _square(40)]) == STATES[2]

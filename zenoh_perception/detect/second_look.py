@@ -7,15 +7,19 @@ size too soft an edge. Read again at twice its size, the same pixels give OpenCV
 for many of them, with OpenCV still deciding every id (the caller's veto judges each one as it
 judges every other). The look reads:
 
-- **small frames** (up to :data:`MAX_SIDE_PX` a side) whole, at twice their size with the one
-  window of :data:`WINDOW_PX`, or, up to :data:`LOW_RES_SIDE_PX` a side, with the windows of
-  :data:`LOW_RES_WINDOWS`. That costs about four default reads of the frame, so it is
+- **small frames** (up to :data:`MID_LINES` lines and :data:`MAX_SIDE_PX` a side) whole, at
+  twice their size: up to :data:`LOW_RES_LINES` lines by :data:`LOW_RES_PASS` (windows of 9
+  and 17 px, every correctable bit corrected: markers of 2-3 px a cell, a cell of which the
+  default read often reads wrong), from there by :data:`MID_PASS` (one window of 13 px).
+  Each pass was chosen from what OpenCV's own parameters read on the corpus per frame size
+  (``python -m tools.passes``). That costs about four default reads of the frame, so it is
   taken on the stream's first frame and every :data:`PERIOD` frames after, when the default
   read found fewer markers than on the frame before (one may have left its reach), and on the
   frame after a look that added a marker (to follow it while only the look reads it); a
   low-resolution frame also whenever the default read found fewer markers than on any of the
   last :data:`PERIOD` frames (its markers of 2-3 px a cell come and go from frame to frame);
-- **larger frames** (HD720 and up, where a whole read at 2x would cost several times a
+- **larger frames** (960x720, HD720 and up: no pass measured read a marker the default read
+  missed on frames of over 480 lines, and a whole read at 2x would cost several times a
   frame's budget) only where the default read left a candidate: the quads OpenCV rejected,
   :data:`CANDIDATE_SIDE_PX` a side, the :data:`MAX_CANDIDATES` most like a printed marker
   (lighter around, dark and light inside), each cropped and read at twice its size with the
@@ -33,7 +37,8 @@ What it finds is merged where no marker of the same id is at that place, and onl
 light around the marker reads like a printed marker's margin (:data:`ADDED_QUIET_MIN`): the look
 reads things the default read rightly passes over, and the generator's look-alikes it reads
 sit on darker surrounds than any true marker it added on the real corpus. A candidate read
-with corrected bits must also be seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`) and
+with corrected bits, and a marker of a correcting pass whose cells do not read as its id's
+code bit for bit, must also be seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`) and
 read as its id by a clear margin on the cells' own levels (:data:`CORRECTED_MARGIN_BITS`),
 whatever its surround.
 Pure: no Zenoh, no logging.
@@ -42,7 +47,8 @@ Pure: no Zenoh, no logging.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Final
+from dataclasses import dataclass
+from typing import Any, Final
 
 import cv2
 import numpy as np
@@ -62,21 +68,55 @@ from zenoh_perception.tags.geometry import mean_side
 
 Quad = npt.NDArray[np.float32]
 
-#: Frames with a larger side are looked at only where OpenCV rejected a candidate.
+#: Frames with a longer side than this, or more lines than :data:`MID_LINES`, are read whole
+#: by no pass: only where OpenCV rejected a candidate (see the module documentation).
 MAX_SIDE_PX: Final = 1000
-#: How much larger the frame is read.
+#: How much larger a pass reads the frame.
 SCALE: Final = 2
-#: The one adaptive-threshold window of the look, pixels of the enlarged frame.
-WINDOW_PX: Final = 13
-#: Frames with a longer side of at most this (webcams at 320x240, 384x216, phones' 320x180)
-#: are read at 2x with the windows of :data:`LOW_RES_WINDOWS` instead: on the real corpus's
-#: low-resolution video of a board of markers of 9-28 px (every other frame), the one 13 px
-#: window read 267 id-frames the default missed and missed 214 the default read; windows 9
-#: and 17 read 345 and missed 89, at about two thirds of the cost of three windows (7-23,
-#: 334 and 74), and as many on its stills (``python -m tools.passes``).
-LOW_RES_SIDE_PX: Final = 400
-#: The low-resolution frames' adaptive-threshold windows: from, to, step (enlarged pixels).
-LOW_RES_WINDOWS: Final = (9, 17, 8)
+#: Frames of at most this many lines (the shorter side: 320x180, 384x216, 320x240, 424x240)
+#: are low-resolution frames: their markers have 2-3 px a cell, and they are read by
+#: :data:`LOW_RES_PASS`, also whenever the default read found fewer markers than lately.
+LOW_RES_LINES: Final = 240
+#: Frames of more lines than this (960x720, 816x612, HD720 and up) are read whole by no pass:
+#: on the corpus's stills and videos of 481-720 lines no setting measured read a marker the
+#: default read missed (``python -m tools.passes``).
+MID_LINES: Final = 480
+
+
+@dataclass(frozen=True, slots=True)
+class Pass:
+    """One read of the whole frame by OpenCV's own detector with other parameters: the frame
+    enlarged :data:`SCALE` times, its adaptive-threshold windows from, to, step (enlarged
+    pixels), and whether every bit the dictionary can correct is corrected."""
+
+    windows: tuple[int, int, int]
+    corrects: bool = False
+
+    def detector(self, dictionaries: Sequence[str]) -> Any:
+        """OpenCV's detector for this pass, on ``dictionaries``."""
+        params = cv2.aruco.DetectorParameters()
+        first, last, step = self.windows
+        params.adaptiveThreshWinSizeMin = first
+        params.adaptiveThreshWinSizeMax = last
+        params.adaptiveThreshWinSizeStep = step
+        if self.corrects:
+            params.errorCorrectionRate = 1.0
+        return aruco_detector(tuple(dictionaries), params)
+
+
+#: The pass of low-resolution frames (:data:`LOW_RES_LINES`), stills and video alike: windows
+#: of 9 and 17 px at 2x, every correctable bit corrected. On the corpus's board video of
+#: 320x180 (every 4th frame) it read 258 id-frames the default missed, against 180 without the
+#: correction and 148 with the one 13 px window, at the cost of those; on its 320x240 stills 9
+#: against 5; no false id either way, before the look's own checks and the veto; on generated
+#: look-alikes of 320x240 and 320x180 it added none (``python -m tools.passes``).
+LOW_RES_PASS: Final = Pass((9, 17, 8), corrects=True)
+#: The pass of frames of 241-480 lines: the one window of 13 px at 2x. On the corpus's videos
+#: of that size it read 10 id-frames the default missed (833 frames), on its stills 8 (17),
+#: no false id; the windows 9 and 17 read 9 and 9 at 1.5x its cost; with every bit corrected
+#: too, 18 and 13, but 9 false ids on the videos and, on generated look-alikes of 640x480, one
+#: the veto keeps.
+MID_PASS: Final = Pass((13, 13, 10))
 #: A frame where the default read found a marker larger than this (mean side, frame pixels)
 #: has its tag without waiting for the look.
 SMALL_SIDE_PX: Final = 32.0
@@ -140,16 +180,9 @@ class SecondLook:
 
     def __init__(self, dictionaries: Sequence[str]) -> None:
         self._dictionaries = tuple(dictionaries)
-        params = cv2.aruco.DetectorParameters()
-        params.adaptiveThreshWinSizeMin = WINDOW_PX
-        params.adaptiveThreshWinSizeMax = WINDOW_PX
-        self._detector = aruco_detector(self._dictionaries, params)
-        params = cv2.aruco.DetectorParameters()
-        first, last, step = LOW_RES_WINDOWS
-        params.adaptiveThreshWinSizeMin = first
-        params.adaptiveThreshWinSizeMax = last
-        params.adaptiveThreshWinSizeStep = step
-        self._low_res_detector = aruco_detector(self._dictionaries, params)
+        self._detectors = {
+            chosen: chosen.detector(self._dictionaries) for chosen in (LOW_RES_PASS, MID_PASS)
+        }
         params = cv2.aruco.DetectorParameters()
         first, last, step = CANDIDATE_WINDOWS
         params.adaptiveThreshWinSizeMin = first
@@ -172,10 +205,10 @@ class SecondLook:
         self._frames, self._previous = index + 1, len(found)
         most = max(self._recent, default=0)
         self._recent = [*self._recent[-(PERIOD - 1) :], len(found)]
-        searching = max(shape[:2]) > MAX_SIDE_PX and not found
+        searching = not _whole(shape) and not found
         # a low-resolution frame where the default read found fewer markers than lately: one
         # it read lately may be there, too small or too soft for its windows this time
-        short = max(shape[:2]) <= LOW_RES_SIDE_PX and len(found) < most
+        short = min(shape[:2]) <= LOW_RES_LINES and len(found) < most
         if not (index % PERIOD == 0 or len(found) < previous or self._added or searching or short):
             return None
         if any(mean_side(d.corners) > SMALL_SIDE_PX for d in found):
@@ -194,18 +227,17 @@ class SecondLook:
         enlarged; on a larger one, those its default read's ``rejected`` candidates show."""
         self.counters["looks"] += 1
         self._added = False
-        height, width = image.shape[:2]
-        if max(height, width) > MAX_SIDE_PX:
+        if not _whole(image.shape):
             return self._merge(image, found, self._candidates(image, found, rejected), keep)
+        chosen = LOW_RES_PASS if min(image.shape[:2]) <= LOW_RES_LINES else MID_PASS
+        height, width = image.shape[:2]
         big = cv2.resize(image, (width * SCALE, height * SCALE), interpolation=cv2.INTER_LINEAR)
-        low_res = max(height, width) <= LOW_RES_SIDE_PX
-        detector = self._low_res_detector if low_res else self._detector
         more = [
             # the centre of the enlarged frame's pixel (x, y) is the frame's (x + 0.5) / 2 - 0.5
-            Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary)
-            for d in read_markers(detector, big, self._dictionaries)[0]
+            (Detection(d.tag_id, _shrunk(d.corners, (0, 0)), d.dictionary), chosen.corrects)
+            for d in read_markers(self._detectors[chosen], big, self._dictionaries)[0]
         ]
-        return self._merge(image, found, [(d, False) for d in more], keep)
+        return self._merge(image, found, more, keep, exact=True)
 
     def _candidates(
         self,
@@ -248,9 +280,13 @@ class SecondLook:
         found: list[Detection],
         more: list[tuple[Detection, bool]],
         keep: Callable[[Quad], bool],
+        *,
+        exact: bool = False,
     ) -> list[Detection]:
         """``found`` and each of ``more`` that is new, accepted by ``keep`` and on a light
-        margin, and, when its bits were corrected (its flag), clear (:meth:`_clear`)."""
+        margin, and, when its bits may have been corrected (its flag), clear
+        (:meth:`_clear`); with ``exact``, unless its cells read as its id's code bit for bit
+        (nothing was corrected)."""
         merged = list(found)
         for detection, corrected in more:
             if not keep(detection.corners) or any(same_marker(detection, o) for o in merged):
@@ -258,12 +294,20 @@ class SecondLook:
             reading = read_detection(image, detection, detection.dictionary)
             if reading.quiet < ADDED_QUIET_MIN:
                 continue
-            if corrected and not self._clear(reading, detection):
+            trusted = not corrected or (exact and self._exact(reading, detection))
+            if not trusted and not self._clear(reading, detection):
                 continue
             merged.append(detection)
             self.counters["added"] += 1
             self._added = True
         return merged
+
+    def _exact(self, reading: Reading, detection: Detection) -> bool:
+        """Whether ``detection``'s cells (``reading``) read as its id's code bit for bit."""
+        codes = self._codes[detection.dictionary]
+        if not 0 <= detection.tag_id < len(codes) // 4:
+            return False
+        return bool(np.array_equal(reading.white, codes[4 * detection.tag_id] > 0.5))
 
     def _clear(self, reading: Reading, detection: Detection) -> bool:
         """Whether ``detection`` is seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`)
@@ -277,6 +321,11 @@ class SecondLook:
             return False
         margin = decision_margin(reading.levels(), detection.tag_id, codes)
         return margin >= CORRECTED_MARGIN_BITS
+
+
+def _whole(shape: tuple[int, ...]) -> bool:
+    """Whether a frame of ``shape`` is read whole by a pass (else at its candidates)."""
+    return max(shape[:2]) <= MAX_SIDE_PX and min(shape[:2]) <= MID_LINES
 
 
 def _shrunk(corners: Quad, offset: tuple[int, int]) -> Quad:
