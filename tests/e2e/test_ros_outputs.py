@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import queue
+import time
 from typing import Any
 
 import cv2
@@ -11,6 +13,7 @@ import pytest
 import zenoh
 
 from tests.helpers import (
+    WAIT_S,
     Collector,
     loopback_endpoint,
     open_session,
@@ -114,6 +117,21 @@ def test_run_publishes_every_detection_and_each_tags_transform(endpoint: str) ->
         assert proc.poll() is None
 
 
+def _answered_without_tf(publisher: zenoh.Publisher, everything: Collector, seq: int) -> bool:
+    """Put frame ``seq``; True once its detections array came (no transform before it), False
+    when nothing more came for a while."""
+    meta = RawFrameMeta(W, H, seq=seq, frame_id="cam")
+    publisher.put(render_markers(W, H, MARKERS).tobytes(), attachment=meta.to_msgpack())
+    while True:
+        try:
+            sample = everything.get(timeout=5.0)
+        except queue.Empty:
+            return False
+        assert sample.key != "tf"
+        if sample.key == "perception/detections":
+            return True
+
+
 @pytest.mark.parametrize(
     "flags",
     [(), ("--tf-key", "", *POSE_FLAGS)],
@@ -128,7 +146,13 @@ def test_no_transform_without_a_pose_or_with_tf_off(endpoint: str, flags: tuple[
         everything = Collector(camera, "**")
         publisher = camera.declare_publisher("zed/left/image", congestion_control=_BLOCK)
         wait_for_subscriber(publisher)
-        for seq in (1, 2):
+        # The service may learn of the "**" subscriber after a first frame's outputs: frames
+        # until one frame's array comes (each answered in full, none with a transform)
+        deadline = time.monotonic() + WAIT_S
+        warm = 0
+        while not _answered_without_tf(publisher, everything, warm := warm + 1):
+            assert time.monotonic() < deadline, "no detections array from the service"
+        for seq in (warm + 1, warm + 2):
             meta = RawFrameMeta(W, H, seq=seq, frame_id="cam")
             publisher.put(render_markers(W, H, MARKERS).tobytes(), attachment=meta.to_msgpack())
             # one frame at a time, each fully answered (its array is its last output)
