@@ -589,6 +589,12 @@ def dictionary_codes(name: str) -> Bits:
     return np.asarray(rows, np.float32).reshape(len(table) * 4, size * size)
 
 
+def id_code(codes: Bits, tag_id: int) -> Bits | None:
+    """Id ``tag_id``'s code in ``codes`` (:func:`dictionary_codes`), as OpenCV's corner order
+    reads it; None for an id the dictionary does not hold."""
+    return codes[4 * tag_id] if 0 <= tag_id < len(codes) // 4 else None
+
+
 @cache
 def min_distance(name: str) -> int:
     """The fewest bits in which an id of dictionary ``name`` differs from another id in any

@@ -58,6 +58,7 @@ from zenoh_perception.detect.cells import (
     Reading,
     decision_margin,
     dictionary_codes,
+    id_code,
     quad_sides,
 )
 from zenoh_perception.detect.opencv import aruco_detector, read_markers
@@ -304,10 +305,8 @@ class SecondLook:
 
     def _exact(self, reading: Reading, detection: Detection) -> bool:
         """Whether ``detection``'s cells (``reading``) read as its id's code bit for bit."""
-        codes = self._codes[detection.dictionary]
-        if not 0 <= detection.tag_id < len(codes) // 4:
-            return False
-        return bool(np.array_equal(reading.white, codes[4 * detection.tag_id] > 0.5))
+        code = id_code(self._codes[detection.dictionary], detection.tag_id)
+        return code is not None and bool(np.array_equal(reading.white, code > 0.5))
 
     def _clear(self, reading: Reading, detection: Detection) -> bool:
         """Whether ``detection`` is seen nearly face on (:data:`CORRECTED_MIN_SIDE_RATIO`)
@@ -317,7 +316,7 @@ class SecondLook:
         if min(sides) < CORRECTED_MIN_SIDE_RATIO * max(sides):
             return False
         codes = self._codes[detection.dictionary]
-        if not 0 <= detection.tag_id < len(codes) // 4:
+        if id_code(codes, detection.tag_id) is None:
             return False
         margin = decision_margin(reading.levels(), detection.tag_id, codes)
         return margin >= CORRECTED_MARGIN_BITS

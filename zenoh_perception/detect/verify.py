@@ -19,6 +19,7 @@ from zenoh_perception.detect.cells import (
     Reading,
     decision_margin,
     dictionary_codes,
+    id_code,
     min_distance,
     quad_sides,
     read_cells,
@@ -100,8 +101,7 @@ def read_detection(
     """:func:`read_cells` for ``detection`` on the grid of ``dictionary`` (one predefined
     dictionary), its white cells those of the id OpenCV read."""
     size = int(aruco_dictionary(dictionary).markerSize)
-    every = dictionary_codes(dictionary)
-    bits = every[4 * detection.tag_id] if 0 <= detection.tag_id < len(every) // 4 else None
+    bits = id_code(dictionary_codes(dictionary), detection.tag_id)
     side_px = sum(quad_sides(detection.corners)) / 4
     return read_cells(gray, detection.corners, size, side_px, bits, local_always=local_always)
 
@@ -153,8 +153,7 @@ class _Measuring:
 
     @cached_property
     def reading(self) -> Reading:
-        tag_id, every = self._detection.tag_id, self._every
-        bits = every[4 * tag_id] if 0 <= tag_id < len(every) // 4 else None
+        bits = id_code(self._every, self._detection.tag_id)
         side_px = sum(self._sides) / 4
         return read_cells(
             self._gray,
@@ -190,6 +189,6 @@ class _Measuring:
     @cached_property
     def margin(self) -> float | None:
         codes, tag_id = self._codes, self._detection.tag_id
-        if codes is None or not 0 <= tag_id < len(codes) // 4:
+        if codes is None or id_code(codes, tag_id) is None:
             return None  # no margin rule for this dictionary, or not one of its ids
         return decision_margin(self.reading.levels(), tag_id, codes)
